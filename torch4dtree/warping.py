@@ -19,14 +19,22 @@ pairs) and a vectorised torch one (row by row over the lattice; any device).
 from __future__ import annotations
 
 import math
-from functools import lru_cache
+from functools import cache
 from typing import NamedTuple
 
 import numpy as np
 import torch
 from torch import Tensor
 
-from .curves import interpolate_curve, inverse_srvf, srvf, srvf_sq_distance, uniform_grid, warp_curve, warp_srvf
+from .curves import (
+    interpolate_curve,
+    inverse_srvf,
+    srvf,
+    srvf_sq_distance,
+    uniform_grid,
+    warp_curve,
+    warp_srvf,
+)
 from .rotation import check_rotation_mode, optimal_rotation
 
 try:  # numba is optional: without it the torch backend is used everywhere
@@ -114,7 +122,7 @@ def warp_energy(q1: Tensor, q2: Tensor, gamma: Tensor, rotation: Tensor | None =
 # ----------------------------------------------------------------------------- DP lattice
 
 
-@lru_cache(maxsize=None)
+@cache
 def neighbourhood_steps(n: int) -> tuple[tuple[int, int], ...]:
     """All coprime steps ``(a, b)`` with ``1 <= a, b <= n`` (``n = 6``: the 23 steps of the reference)."""
     if n < 1:
@@ -156,17 +164,56 @@ def _step_arrays(n: int) -> tuple[np.ndarray, np.ndarray]:
 
 if HAVE_NUMBA:
 
-    @numba.njit(cache=True, fastmath=False, boundscheck=False)
-    def _nb_point(beta: np.ndarray, x: float, M: int, out: np.ndarray) -> None:
-        """``beta`` at fractional node index ``x`` (same formula as curves.interpolate_curve)."""
-        fl = int(math.floor(x))
-        if fl > M - 1:
-            fl = M - 1
-        if fl < 0:
-            fl = 0
-        fr = x - fl
-        for c in range(beta.shape[1]):
-            out[c] = beta[fl, c] + fr * (beta[fl + 1, c] - beta[fl, c])
+    @numba.njit(cache=True, boundscheck=False)
+    def _nb_tables(beta2t: np.ndarray, A: np.ndarray, Bs: np.ndarray, off: np.ndarray,
+                   QW: np.ndarray, SS: np.ndarray) -> None:
+        """Edge tables of one pair. ``beta2t (d, M+1)`` (transposed so loops over columns vectorise).
+
+        ``QW[off_s + r, c, l] = 2/M`` times the warped SRVF of sub-segment ``r`` of an edge of step ``s``
+        starting at column ``l``; ``SS[s, l] = 1/M sum_r |v_r|`` (its squared norm).
+        """
+        d, M1 = beta2t.shape
+        M = M1 - 1
+        S = A.shape[0]
+        P0 = np.empty((d, M1))
+        P1 = np.empty((d, M1))
+        nv = np.empty(M1)
+        for s in range(S):
+            a = A[s]
+            b = Bs[s]
+            L = M1 - b
+            for t in range(L):
+                SS[s, t] = 0.0
+            for c in range(d):
+                for t in range(L):
+                    P0[c, t] = beta2t[c, t]
+            for r in range(a):
+                # node r+1 of the edge sits at column l + f + fr (f, fr independent of l)
+                f = ((r + 1) * b) // a
+                fr = (((r + 1) * b) % a) / a
+                if f >= M:  # only the last column: clamp like curves.interpolate_curve
+                    f = M - 1
+                    fr = 1.0
+                for c in range(d):
+                    for t in range(L):
+                        P1[c, t] = beta2t[c, t + f] + fr * (beta2t[c, t + f + 1] - beta2t[c, t + f]) if t + f < M \
+                            else beta2t[c, M]
+                for t in range(L):
+                    nv[t] = 0.0
+                for c in range(d):
+                    for t in range(L):
+                        dv = (P1[c, t] - P0[c, t]) * M
+                        P0[c, t] = dv
+                        nv[t] += dv * dv
+                for t in range(L):
+                    n1 = math.sqrt(nv[t])
+                    SS[s, t] += n1 / M
+                    nv[t] = 2.0 / (M * math.sqrt(n1)) if n1 > 0 else 0.0
+                for c in range(d):
+                    row = QW[off[s] + r, c]
+                    for t in range(L):
+                        row[t] = P0[c, t] * nv[t]
+                        P0[c, t] = P1[c, t]
 
     @numba.njit(cache=True, boundscheck=False)
     def _nb_dp_one(q1: np.ndarray, beta2: np.ndarray, A: np.ndarray, Bs: np.ndarray, lo: np.ndarray,
@@ -177,33 +224,9 @@ if HAVE_NUMBA:
         off = np.zeros(S + 1, np.int64)
         for s in range(S):
             off[s + 1] = off[s] + A[s]
-        # tables: 2/M * warped SRVF of every sub-segment r of every edge type, and 1/M * sum_r |v_r|
         QW = np.zeros((off[S], d, M + 1))
         SS = np.zeros((S, M + 1))
-        p0 = np.empty(d)
-        p1 = np.empty(d)
-        v = np.empty(d)
-        for s in range(S):
-            a = A[s]
-            b = Bs[s]
-            for lcol in range(M + 1 - b):
-                _nb_point(beta2, float(lcol), M, p0)
-                tot = 0.0
-                for r in range(a):
-                    _nb_point(beta2, lcol + (r + 1) * b / a, M, p1)
-                    nv2 = 0.0
-                    for c in range(d):
-                        v[c] = (p1[c] - p0[c]) * M
-                        nv2 += v[c] * v[c]
-                    nv = math.sqrt(nv2)
-                    if nv > 0:
-                        sc = 2.0 / (M * math.sqrt(nv))
-                        for c in range(d):
-                            QW[off[s] + r, c, lcol] = v[c] * sc
-                    tot += nv
-                    for c in range(d):
-                        p0[c] = p1[c]
-                SS[s, lcol] = tot / M
+        _nb_tables(np.ascontiguousarray(beta2.T), A, Bs, off, QW, SS)
         E = np.full((M + 1, M + 1), np.inf)
         arg = np.zeros((M + 1, M + 1), np.int8)
         E[0, 0] = 0.0
@@ -220,21 +243,26 @@ if HAVE_NUMBA:
                 j0 = max(jl, b)
                 if j0 > jh:
                     continue
-                for j in range(j0, jh + 1):
-                    tmp[j] = SS[s, j - b]
+                nj = jh + 1 - j0
+                # contiguous views indexed from 0 so the inner loops vectorise (no wraparound checks)
+                tv = tmp[:nj]
+                sv = SS[s, j0 - b : jh + 1 - b]
+                for t in range(nj):
+                    tv[t] = sv[t]
                 for r in range(a):
                     for c in range(d):
                         w = q1[k + r, c]
-                        row = QW[off[s] + r, c]
-                        for j in range(j0, jh + 1):
-                            tmp[j] -= w * row[j - b]
-                Ek = E[k]
-                Ei = E[i]
-                for j in range(j0, jh + 1):
-                    cand = Ek[j - b] + tmp[j]
-                    if cand < Ei[j]:
-                        Ei[j] = cand
-                        arg[i, j] = s
+                        rv = QW[off[s] + r, c, j0 - b : jh + 1 - b]
+                        for t in range(nj):
+                            tv[t] -= w * rv[t]
+                ev = E[k, j0 - b : jh + 1 - b]
+                ei = E[i, j0 : jh + 1]
+                av = arg[i, j0 : jh + 1]
+                for t in range(nj):
+                    cand = ev[t] + tv[t]
+                    if cand < ei[t]:
+                        ei[t] = cand
+                        av[t] = s
         if not E[M, M] < np.inf:
             for m in range(M + 1):
                 gamma[m] = m / M
@@ -258,6 +286,211 @@ if HAVE_NUMBA:
                 q1sq += q1[m, c] * q1[m, c]
         return E[M, M] + q1sq / M
 
+    @numba.njit(cache=True, boundscheck=False)
+    def _nb_inverse_srvf(q: np.ndarray, beta: np.ndarray) -> None:
+        """``beta (M+1, d)`` from ``q (M, d)``, starting at the origin (as curves.inverse_srvf)."""
+        M, d = q.shape
+        for c in range(d):
+            beta[0, c] = 0.0
+        for m in range(M):
+            nq = 0.0
+            for c in range(d):
+                nq += q[m, c] * q[m, c]
+            sp = math.sqrt(nq) / M
+            for c in range(d):
+                beta[m + 1, c] = beta[m, c] + q[m, c] * sp
+
+    @numba.njit(cache=True, boundscheck=False)
+    def _nb_srvf(beta: np.ndarray, q: np.ndarray) -> None:
+        """``q (T-1, d)`` of ``beta (T, d)`` (as curves.srvf)."""
+        M = beta.shape[0] - 1
+        d = beta.shape[1]
+        for m in range(M):
+            nv = 0.0
+            for c in range(d):
+                v = (beta[m + 1, c] - beta[m, c]) * M
+                q[m, c] = v
+                nv += v * v
+            sc = 1.0 / math.sqrt(math.sqrt(nv)) if nv > 0 else 0.0
+            for c in range(d):
+                q[m, c] *= sc
+
+    @numba.njit(cache=True, boundscheck=False)
+    def _nb_interp(beta: np.ndarray, svals: np.ndarray, out: np.ndarray) -> None:
+        """``beta (T, d)`` at parameters ``svals (n,)`` (as curves.interpolate_curve)."""
+        T, d = beta.shape
+        for m in range(svals.shape[0]):
+            x = min(max(svals[m], 0.0), 1.0) * (T - 1)
+            fl = min((math.floor(x)), T - 2)
+            fr = x - fl
+            for c in range(d):
+                out[m, c] = beta[fl, c] + fr * (beta[fl + 1, c] - beta[fl, c])
+
+    @numba.njit(cache=True, boundscheck=False)
+    def _nb_resample(beta: np.ndarray, T: int) -> np.ndarray:
+        out = np.empty((T, beta.shape[1]))
+        _nb_interp(beta, np.linspace(0.0, 1.0, T), out)
+        return out
+
+    @numba.njit(cache=True, boundscheck=False)
+    def _nb_energy(q1: np.ndarray, beta2: np.ndarray, gamma: np.ndarray, O: np.ndarray) -> float:
+        """``||q1 - O warp_srvf(q2, gamma)||^2`` with ``beta2`` the curve of ``q2``."""
+        M, d = q1.shape
+        bw = np.empty((M + 1, d))
+        _nb_interp(beta2, gamma, bw)
+        qw = np.empty((M, d))
+        _nb_srvf(bw, qw)
+        e = 0.0
+        for m in range(M):
+            for c in range(d):
+                x = q1[m, c]
+                for c2 in range(d):
+                    x -= O[c, c2] * qw[m, c2]
+                e += x * x
+        return e / M
+
+    @numba.njit(cache=True, boundscheck=False)
+    def _nb_rotation(q1: np.ndarray, beta2: np.ndarray, gamma: np.ndarray, mode: int, up: np.ndarray) -> np.ndarray:
+        """Optimal rotation (1 vertical, 2 so3) of ``warp_srvf(q2, gamma)`` onto ``q1`` (see rotation.py)."""
+        M, d = q1.shape
+        bw = np.empty((M + 1, d))
+        _nb_interp(beta2, gamma, bw)
+        qw = np.empty((M, d))
+        _nb_srvf(bw, qw)
+        A = q1.T @ qw / M
+        if mode == 2:
+            U, _, Vt = np.linalg.svd(A)
+            O = U @ Vt
+            if np.linalg.det(O) < 0:
+                U[:, d - 1] = -U[:, d - 1]
+                O = U @ Vt
+            return O
+        u = up / math.sqrt((up * up).sum())
+        K = np.zeros((3, 3))
+        K[0, 1], K[0, 2], K[1, 2] = -u[2], u[1], -u[0]
+        K[1, 0], K[2, 0], K[2, 1] = u[2], -u[1], u[0]
+        uu = np.outer(u, u)
+        c = A[0, 0] + A[1, 1] + A[2, 2] - u @ A @ u
+        sn = (K * A).sum()
+        th = math.atan2(sn, c)
+        return uu + math.cos(th) * (np.eye(3) - uu) + math.sin(th) * K
+
+    @numba.njit(cache=True, boundscheck=False)
+    def _nb_band(center: np.ndarray, M: int, n: int, w: int, lo: np.ndarray, hi: np.ndarray) -> None:
+        """Same band as ``_band_around`` for one warp ``center (M+1,)``."""
+        for i in range(M + 1):
+            g0 = center[max(i - w, 0)] * M
+            g1 = center[min(i + w, M)] * M
+            rlo = max(-(-i // n), M - n * (M - i))
+            rhi = min(n * i, M - (-(-(M - i) // n)))
+            lo[i] = max((math.floor(g0 + 1e-9)) - w, rlo)
+            hi[i] = max(min((math.ceil(g1 - 1e-9)) + w, rhi), lo[i])
+
+    @numba.njit(cache=True, boundscheck=False)
+    def _nb_inverse_from(q: np.ndarray) -> np.ndarray:
+        beta = np.empty((q.shape[0] + 1, q.shape[1]))
+        _nb_inverse_srvf(q, beta)
+        return beta
+
+    @numba.njit(cache=True, boundscheck=False)
+    def _nb_dp_search(q1: np.ndarray, beta2: np.ndarray, A: np.ndarray, Bs: np.ndarray, n: int, band: int,
+                      coarse: int, init: np.ndarray, gamma: np.ndarray) -> float:
+        """Full (band < 0), banded around ``init`` (if it has M+1 entries) or coarse-to-fine DP."""
+        M, d = q1.shape
+        lo = np.empty(M + 1, np.int64)
+        hi = np.empty(M + 1, np.int64)
+        if band < 0 or (init.shape[0] != M + 1 and M <= coarse):
+            for i in range(M + 1):
+                lo[i] = max(-(-i // n), M - n * (M - i))
+                hi[i] = min(n * i, M - (-(-(M - i) // n)))
+            return _nb_dp_one(q1, beta2, A, Bs, lo, hi, gamma)
+        if init.shape[0] == M + 1:
+            center = init
+        else:
+            Mc = max(coarse, (M + 1) // 2)
+            if Mc >= M:
+                Mc = M // 2
+            b1c = _nb_resample(np.ascontiguousarray(_nb_inverse_from(q1)), Mc + 1)
+            q1c = np.empty((Mc, d))
+            _nb_srvf(b1c, q1c)
+            b2c = _nb_resample(beta2, Mc + 1)
+            gc = np.empty(Mc + 1)
+            _nb_dp_search(q1c, b2c, A, Bs, n, band, coarse, np.empty(0), gc)
+            center = np.empty(M + 1)
+            _nb_interp(gc.reshape(Mc + 1, 1), np.linspace(0.0, 1.0, M + 1), center.reshape(M + 1, 1))
+        _nb_band(center, M, n, band, lo, hi)
+        return _nb_dp_one(q1, beta2, A, Bs, lo, hi, gamma)
+
+    @numba.njit(cache=True, boundscheck=False)
+    def _nb_register_one(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, Bs: np.ndarray, n: int, band: int,
+                         coarse: int, mode: int, up: np.ndarray, max_iters: int, tol: float,
+                         gamma: np.ndarray, O: np.ndarray) -> tuple[float, float]:
+        """Alternate the optimal rotation and the DP warp for one pair; returns (energy, identity energy).
+
+        Writes the best ``gamma (M+1,)`` and ``O (d, d)`` seen; the identity pair is the first candidate.
+        """
+        M, d = q1.shape
+        beta2 = _nb_inverse_from(q2)
+        ident = np.linspace(0.0, 1.0, M + 1)
+        eye = np.eye(d)
+        e_before = _nb_energy(q1, beta2, ident, eye)
+        best = e_before
+        gamma[:] = ident
+        O[:, :] = eye
+        Ocur = eye.copy() if mode == 0 else _nb_rotation(q1, beta2, ident, mode, up)
+        g = np.empty(M + 1)
+        prev = np.empty(0)
+        last = np.inf
+        for it in range(max(max_iters, 1)):
+            b2r = np.ascontiguousarray(beta2 @ Ocur.T)
+            e = _nb_dp_search(q1, b2r, A, Bs, n, band, coarse, prev, g)
+            if e < best:
+                best = e
+                gamma[:] = g
+                O[:, :] = Ocur
+            if mode == 0:
+                break
+            Onew = _nb_rotation(q1, beta2, g, mode, up)
+            e2 = _nb_energy(q1, beta2, g, Onew)
+            if e2 < best:
+                best = e2
+                gamma[:] = g
+                O[:, :] = Onew
+            if not last - e2 > tol * max(last, 1e-300):
+                break
+            last = e2
+            Ocur = Onew
+            prev = g.copy()
+        return best, e_before
+
+    @numba.njit(cache=True, parallel=True, boundscheck=False)
+    def _nb_register_batch(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, Bs: np.ndarray, n: int, band: int,
+                           coarse: int, mode: int, up: np.ndarray, max_iters: int,
+                           tol: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        Bn, M, d = q1.shape
+        energy = np.empty(Bn)
+        before = np.empty(Bn)
+        gamma = np.empty((Bn, M + 1))
+        O = np.empty((Bn, d, d))
+        for p in numba.prange(Bn):
+            energy[p], before[p] = _nb_register_one(q1[p], q2[p], A, Bs, n, band, coarse, mode, up, max_iters,
+                                                    tol, gamma[p], O[p])
+        return energy, before, gamma, O
+
+    @numba.njit(cache=True, boundscheck=False)
+    def _nb_register_serial(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, Bs: np.ndarray, n: int, band: int,
+                            coarse: int, mode: int, up: np.ndarray, max_iters: int,
+                            tol: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        Bn, M, d = q1.shape
+        energy = np.empty(Bn)
+        before = np.empty(Bn)
+        gamma = np.empty((Bn, M + 1))
+        O = np.empty((Bn, d, d))
+        for p in range(Bn):
+            energy[p], before[p] = _nb_register_one(q1[p], q2[p], A, Bs, n, band, coarse, mode, up, max_iters,
+                                                    tol, gamma[p], O[p])
+        return energy, before, gamma, O
+
     @numba.njit(cache=True, parallel=True, boundscheck=False)
     def _nb_dp_batch(q1: np.ndarray, beta2: np.ndarray, A: np.ndarray, Bs: np.ndarray, lo: np.ndarray,
                      hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -268,12 +501,27 @@ if HAVE_NUMBA:
             energy[p] = _nb_dp_one(q1[p], beta2[p], A, Bs, lo[p], hi[p], gamma[p])
         return energy, gamma
 
+    @numba.njit(cache=True, boundscheck=False)
+    def _nb_dp_serial(q1: np.ndarray, beta2: np.ndarray, A: np.ndarray, Bs: np.ndarray, lo: np.ndarray,
+                      hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        Bn, M, _ = q1.shape
+        energy = np.empty(Bn)
+        gamma = np.empty((Bn, M + 1))
+        for p in range(Bn):
+            energy[p] = _nb_dp_one(q1[p], beta2[p], A, Bs, lo[p], hi[p], gamma[p])
+        return energy, gamma
+
+
+# below this many pairs a parallel launch costs more than it saves (and stalls on a busy machine)
+PARALLEL_MIN_PAIRS = 8
+
 
 def _dp_numba(q1: Tensor, q2: Tensor, n: int, lo: np.ndarray, hi: np.ndarray) -> tuple[Tensor, Tensor]:
     A, Bs = _step_arrays(n)
     q1n = q1.detach().to("cpu", torch.float64).contiguous().numpy()
     beta2 = inverse_srvf(q2.detach().to("cpu", torch.float64)).contiguous().numpy()
-    energy, gamma = _nb_dp_batch(q1n, beta2, A, Bs, lo, hi)
+    kernel = _nb_dp_batch if len(q1n) >= PARALLEL_MIN_PAIRS and numba.get_num_threads() > 1 else _nb_dp_serial
+    energy, gamma = kernel(q1n, beta2, A, Bs, lo, hi)
     return torch.from_numpy(energy), torch.from_numpy(gamma)
 
 
@@ -377,12 +625,38 @@ class DPWarp(NamedTuple):
     energy: Tensor
 
 
+class CurveRegistration(NamedTuple):
+    """Result of :func:`register_curves` (``B`` pairs, ``T`` points, dimension ``d``).
+
+    * ``gamma (B, T)``: warp of the moving curve, ``registered = O moving(gamma(s))``.
+    * ``rotation (B, d, d)``: ``O``, acting on row vectors as ``x @ O.T``.
+    * ``distance (B,)``: ``sqrt(energy)``, differentiable in the inputs given ``gamma`` and ``O``.
+    * ``energy (B,)``: ``||q_ref - O warp_srvf(q_mov, gamma)||^2`` (no scale normalisation).
+    * ``energy_before (B,)``: the same with the identity warp and rotation.
+    * ``registered (B, T, d)``: the moving curve rotated, reparameterised and translated to start at
+      the reference's first point; ``q_registered (B, T-1, d)`` its SRVF.
+    """
+
+    gamma: Tensor
+    rotation: Tensor
+    distance: Tensor
+    energy: Tensor
+    energy_before: Tensor
+    registered: Tensor
+    q_registered: Tensor
+
+
 def _resample_srvf(q: Tensor, M: int) -> Tensor:
     """SRVF of the curve of ``q`` resampled (linearly in the parameter) to ``M`` segments."""
     if q.shape[-2] == M:
         return q
-    beta = inverse_srvf(q)
-    return srvf(interpolate_curve(beta, uniform_grid(M + 1, q).expand(*q.shape[:-2], M + 1)))
+    return srvf(_resample_curve(inverse_srvf(q), M + 1))
+
+
+def _resample_curve(beta: Tensor, T: int) -> Tensor:
+    if beta.shape[-2] == T:
+        return beta
+    return interpolate_curve(beta, uniform_grid(T, beta).expand(*beta.shape[:-2], T))
 
 
 def _pick_backend(backend: str, x: Tensor) -> str:
@@ -396,79 +670,193 @@ def _pick_backend(backend: str, x: Tensor) -> str:
 
 
 def _run_dp(q1: Tensor, q2: Tensor, n: int, lo: np.ndarray, hi: np.ndarray, backend: str) -> tuple[Tensor, Tensor]:
+    """One DP over the lattice restricted to columns ``[lo, hi] (B, M+1)`` per row. ``-> energy, gamma``."""
     if backend == "numba":
         energy, gamma = _dp_numba(q1, q2, n, lo, hi)
         return energy.to(q1.device, q1.dtype), gamma.to(q1.device, q1.dtype)
     return _dp_torch(q1, q2, n, lo, hi)
 
 
-def _check_srvf_pair(q1: Tensor, q2: Tensor) -> None:
-    if q1.dim() != 3 or q2.dim() != 3:
-        raise ValueError(f"expected SRVFs of shape (B, M, d), got {tuple(q1.shape)} and {tuple(q2.shape)}")
-    if q1.shape[0] != q2.shape[0] or q1.shape[2] != q2.shape[2]:
-        raise ValueError(f"batch sizes / dimensions differ: {tuple(q1.shape)} vs {tuple(q2.shape)}")
-    if q1.shape[1] < 1 or q2.shape[1] < 1:
-        raise ValueError("curves need at least 2 points (1 SRVF segment)")
-    if not (torch.isfinite(q1).all() and torch.isfinite(q2).all()):
-        raise ValueError("SRVFs contain NaN or inf")
+def _dp_levels(q1: Tensor, q2: Tensor, n: int, band: int | None, coarse: int | None, init: Tensor | None,
+               backend: str) -> tuple[Tensor, Tensor]:
+    """Full (``band=None``), banded around ``init`` or coarse-to-fine DP (mirrors ``_nb_dp_search``)."""
+    B, M, _ = q1.shape
+    if band is None or (init is None and (coarse is None or M <= coarse)):
+        lo, hi = _reachable_band(M, n)
+        energy, gamma = _run_dp(q1, q2, n, np.tile(lo, (B, 1)), np.tile(hi, (B, 1)), backend)
+        return gamma, energy
+    if init is not None:
+        center = init
+    else:
+        assert coarse is not None
+        Mc = max(coarse, (M + 1) // 2)
+        if Mc >= M:
+            Mc = M // 2
+        gc, _ = _dp_levels(_resample_srvf(q1, Mc), _resample_srvf(q2, Mc), n, band, coarse, None, backend)
+        center = interpolate_curve(gc.unsqueeze(-1), uniform_grid(M + 1, q1).expand(B, M + 1))[..., 0]
+    lo, hi = _band_around(center, M, n, band)
+    energy, gamma = _run_dp(q1, q2, n, lo, hi, backend)
+    return gamma, energy
 
 
-@torch.no_grad()
+_MODES = {"none": 0, "vertical": 1, "so3": 2}
+
+
+def _register_torch(q1: Tensor, q2: Tensor, n: int, band: int | None, coarse: int | None, rotation: str,
+                    up: Tensor, max_iters: int, tol: float) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """Batched torch twin of ``_nb_register_one``. ``-> energy, energy_before, gamma, O``."""
+    B, M, d = q1.shape
+    ident = identity_warp(B, M + 1, q1)
+    eye = torch.eye(d, dtype=q1.dtype, device=q1.device).expand(B, d, d).clone()
+    before = warp_energy(q1, q2, ident)
+    best, gamma, O = before.clone(), ident.clone(), eye.clone()
+    Ocur = eye if rotation == "none" else optimal_rotation(q1, q2, rotation, up)
+    prev: Tensor | None = None
+    last = torch.full_like(before, float("inf"))
+    active = torch.ones(B, dtype=torch.bool, device=q1.device)
+
+    def keep(e: Tensor, g: Tensor, R: Tensor) -> None:
+        nonlocal best, gamma, O
+        better = active & (e < best)
+        best = torch.where(better, e, best)
+        gamma = torch.where(better[:, None], g, gamma)
+        O = torch.where(better[:, None, None], R, O)
+
+    for _ in range(max(max_iters, 1)):
+        g, e = _dp_levels(q1, q2 @ Ocur.transpose(-1, -2), n, band, coarse, prev, "torch")
+        keep(e, g, Ocur)
+        if rotation == "none":
+            break
+        Onew = optimal_rotation(q1, warp_srvf(q2, g), rotation, up)
+        e2 = warp_energy(q1, q2, g, Onew)
+        keep(e2, g, Onew)
+        active = active & (last - e2 > tol * last.clamp_min(1e-300))
+        if not bool(active.any()):
+            break
+        last = torch.where(active, e2, last)
+        Ocur = torch.where(active[:, None, None], Onew, Ocur)
+        prev = g if prev is None else torch.where(active[:, None], g, prev)
+    return best, before, gamma, O
+
+
+def _register_numba(q1: Tensor, q2: Tensor, n: int, band: int | None, coarse: int | None, rotation: str,
+                    up: Tensor, max_iters: int, tol: float) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    A, Bs = _step_arrays(n)
+    q1n = q1.detach().to("cpu", torch.float64).contiguous().numpy()
+    q2n = q2.detach().to("cpu", torch.float64).contiguous().numpy()
+    upn = up.detach().to("cpu", torch.float64).contiguous().numpy()
+    kernel = _nb_register_batch if len(q1n) >= PARALLEL_MIN_PAIRS and numba.get_num_threads() > 1 \
+        else _nb_register_serial
+    out = kernel(q1n, q2n, A, Bs, n, -1 if band is None else band, 1 << 30 if coarse is None else coarse,
+                 _MODES[rotation], upn, max_iters, tol)
+    return tuple(torch.from_numpy(x).to(q1.device, q1.dtype) for x in out)  # type: ignore[return-value]
+
+
+def _check_inputs(moving: Tensor, reference: Tensor, min_points: int, what: str) -> tuple[Tensor, Tensor, bool]:
+    """Validate a pair of batched (or single) inputs; returns them batched and whether they were single."""
+    if not isinstance(moving, Tensor) or not isinstance(reference, Tensor):
+        raise TypeError("moving and reference must be torch tensors")
+    if moving.dim() != reference.dim() or moving.dim() not in (2, 3):
+        raise ValueError(f"expected {what} of shape (B, T, d) or (T, d), got {tuple(moving.shape)} "
+                         f"and {tuple(reference.shape)}")
+    single = moving.dim() == 2
+    if single:
+        moving, reference = moving.unsqueeze(0), reference.unsqueeze(0)
+    if moving.shape[0] != reference.shape[0]:
+        raise ValueError(f"batch sizes differ: {moving.shape[0]} vs {reference.shape[0]}")
+    if moving.shape[2] != reference.shape[2]:
+        raise ValueError(f"dimensions differ: d={moving.shape[2]} vs d={reference.shape[2]}")
+    if min(moving.shape[1], reference.shape[1]) < min_points:
+        raise ValueError(f"{what} need at least {min_points} sample(s) along the curve, got "
+                         f"{moving.shape[1]} and {reference.shape[1]}")
+    if not moving.is_floating_point() or not reference.is_floating_point():
+        raise ValueError("inputs must be floating point tensors")
+    if not (torch.isfinite(moving).all() and torch.isfinite(reference).all()):
+        raise ValueError(f"{what} contain NaN or inf")
+    if moving.device != reference.device:
+        raise ValueError(f"inputs are on different devices: {moving.device} vs {reference.device}")
+    return moving, reference.to(moving.dtype), single
+
+
 def dp_warp(q1: Tensor, q2: Tensor, neighbourhood: int = 6, band: int | None = 6, coarse: int | None = 32,
-            init: Tensor | None = None, backend: str = "auto") -> DPWarp:
+            backend: str = "auto") -> DPWarp:
     """Optimal warps of ``q2`` onto ``q1`` by dynamic programming (no rotation).
 
     Args:
         q1: ``(B, M, d)`` reference SRVFs (or ``(M, d)`` for one pair).
-        q2: ``(B, M2, d)`` moving SRVFs; resampled to ``M`` segments when ``M2 != M``.
+        q2: ``(B, M2, d)`` moving SRVFs; resampled (through their curves) to ``M`` segments if ``M2 != M``.
         neighbourhood: allowed steps are the coprime ``(a, b)`` with ``1 <= a, b <= neighbourhood``.
-        band: half-width (in grid cells) of the band searched around a first guess; ``None`` searches
-            the whole lattice (exact DP optimum over all lattice warps).
-        coarse: with a band and no ``init``, the first guess is the DP on a grid of about
-            ``coarse`` segments (recursively coarse-to-fine); ``None`` uses the identity warp.
-        init: ``(B, M+1)`` first-guess warps to search around (with ``band``).
+        band: half-width (in grid cells) of the band searched around the coarse solution; ``None``
+            searches the whole lattice (the exact optimum over all lattice warps).
+        coarse: grids finer than this many segments are first solved on a grid half as fine
+            (recursively), then refined in the band.
         backend: ``"numba"`` (CPU), ``"torch"`` (any device) or ``"auto"``.
 
     Returns:
-        ``DPWarp(gamma (B, M+1), energy (B,))`` with ``energy = ||q1 - warp_srvf(q2, gamma)||^2``
-        never above that of the identity warp (nor of ``init``).
+        ``DPWarp(gamma (B, M+1), energy (B,))`` with ``energy = ||q1 - warp_srvf(q2, gamma)||^2``,
+        never above the identity warp's energy.
     """
-    single = q1.dim() == 2
-    if single:
-        q1, q2 = q1.unsqueeze(0), q2.unsqueeze(0)
-    _check_srvf_pair(q1, q2)
-    q2 = _resample_srvf(q2.to(q1.dtype), q1.shape[1])
+    q2, q1, single = _check_inputs(q2, q1, 1, "SRVFs")
+    q2 = _resample_srvf(q2, q1.shape[1])
     be = _pick_backend(backend, q1)
-    gamma, energy = _dp_search(q1, q2, neighbourhood, band, coarse, init, be)
+    up = torch.tensor([0.0, 0.0, 1.0])
+    fn = _register_numba if be == "numba" else _register_torch
+    with torch.no_grad():
+        energy, _, gamma, _ = fn(q1, q2, neighbourhood, band, coarse, "none", up, 1, 0.0)
     if single:
         gamma, energy = gamma[0], energy[0]
     return DPWarp(gamma, energy)
 
 
-def _dp_search(q1: Tensor, q2: Tensor, n: int, band: int | None, coarse: int | None, init: Tensor | None,
-               backend: str) -> tuple[Tensor, Tensor]:
-    """Full, banded or coarse-to-fine DP, then keep the best of it, the identity and ``init``."""
-    B, M, _ = q1.shape
-    if band is None or (init is None and coarse is not None and M <= coarse):
-        lo, hi = _reachable_band(M, n)
-        energy, gamma = _run_dp(q1, q2, n, np.tile(lo, (B, 1)), np.tile(hi, (B, 1)), backend)
-        return gamma, energy
-    if init is None and coarse is not None:
-        Mc = max(coarse, (M + 1) // 2)
-        if Mc >= M:
-            Mc = M // 2
-        gc, _ = _dp_search(_resample_srvf(q1, Mc), _resample_srvf(q2, Mc), n, band, coarse, None, backend)
-        center = interpolate_curve(gc.unsqueeze(-1), uniform_grid(M + 1, q1).expand(B, M + 1))[..., 0]
+def register_curves(moving: Tensor, reference: Tensor, rotation: str = "none", srvf_input: bool = False,
+                    neighbourhood: int = 6, band: int | None = 6, coarse: int | None = 32,
+                    up: Tensor | tuple[float, float, float] | None = None, max_iters: int = 10,
+                    tol: float = 1e-6, backend: str = "auto") -> CurveRegistration:
+    """Elastic registration of ``moving`` onto ``reference``: ``min_{gamma, O} ||q_ref - O (q_mov o gamma)||``.
+
+    Args:
+        moving: ``(B, T2, d)`` curves (``(B, T2-1, d)`` SRVFs if ``srvf_input``), or one pair unbatched.
+        reference: ``(B, T, d)`` curves (or SRVFs). ``moving`` is resampled to ``T`` points if needed.
+        rotation: ``"none"``, ``"vertical"`` (about ``up``, default z; d = 3) or ``"so3"``.
+        srvf_input: inputs are SRVFs (curves then start at the origin).
+        neighbourhood, band, coarse, backend: DP settings, see :func:`dp_warp`.
+        up: the vertical axis for ``rotation="vertical"``.
+        max_iters: rounds of (DP warp, optimal rotation); stops early when the energy stops
+            decreasing by more than ``tol`` relatively.
+
+    Returns:
+        :class:`CurveRegistration`. Warps and rotations are found without gradients; ``distance``,
+        ``registered`` and ``q_registered`` are differentiable in the inputs given them.
+    """
+    check_rotation_mode(rotation, moving.shape[-1])
+    if srvf_input:
+        moving, reference, single = _check_inputs(moving, reference, 1, "SRVFs")
+        beta_m, beta_r = inverse_srvf(moving), inverse_srvf(reference)
     else:
-        center = identity_warp(B, M + 1, q1) if init is None else init
-    lo, hi = _band_around(center, M, n, band)
-    energy, gamma = _run_dp(q1, q2, n, lo, hi, backend)
-    # guard: the band may miss the identity (or have no path); keep whichever is best
-    cands = [identity_warp(B, M + 1, q1)] + ([init.to(q1.dtype)] if init is not None else [])
-    for g in cands:
-        e = warp_energy(q1, q2, g)
-        better = e < energy
-        if bool(better.any()):
-            gamma = torch.where(better.unsqueeze(-1), g, gamma)
-            energy = torch.where(better, e, energy)
-    return gamma, energy
+        moving, reference, single = _check_inputs(moving, reference, 2, "curves")
+        beta_m, beta_r = moving, reference
+    T = beta_r.shape[1]
+    beta_m = _resample_curve(beta_m, T)
+    q_ref, q_mov = srvf(beta_r), srvf(beta_m)
+    up_t = torch.as_tensor((0.0, 0.0, 1.0) if up is None else up, dtype=q_ref.dtype, device=q_ref.device)
+    if up_t.shape != (3,) or not bool(up_t.norm() > 0):
+        raise ValueError(f"up must be a nonzero 3-vector, got {up}")
+    be = _pick_backend(backend, q_ref)
+    fn = _register_numba if be == "numba" else _register_torch
+    with torch.no_grad():
+        _, before, gamma, O = fn(q_ref.detach(), q_mov.detach(), neighbourhood, band, coarse, rotation, up_t,
+                                 max_iters, tol)
+    registered = warp_curve(beta_m, gamma) @ O.transpose(-1, -2)
+    registered = registered - registered[:, :1] + beta_r[:, :1]
+    q_reg = srvf(registered)
+    energy = srvf_sq_distance(q_ref, q_reg)
+    distance = torch.where(energy > 0, energy.clamp_min(1e-300).sqrt(), torch.zeros_like(energy))
+    out = CurveRegistration(gamma, O, distance, energy, before.to(energy.dtype), registered, q_reg)
+    if single:
+        out = CurveRegistration(*(x[0] for x in out))
+    return out
+
+
+def elastic_distance(moving: Tensor, reference: Tensor, **kwargs: object) -> Tensor:
+    """Elastic distance ``(B,)`` (or a scalar for one pair): ``register_curves(...).distance``."""
+    return register_curves(moving, reference, **kwargs).distance  # type: ignore[arg-type]
