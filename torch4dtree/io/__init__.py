@@ -1,0 +1,21 @@
+"""Reading and writing trees: SWC, the reference ``.mat`` trees, dataset folders, checkpoints."""
+
+from .dataset import (
+    DatasetError,
+    LoadedSequence,
+    LoadOptions,
+    read_dataset,
+    read_sequence,
+    read_tree,
+    sequence_folders,
+    time_from_name,
+)
+from .files import write_bytes_safely, write_text_safely
+from .mat import MatTreeError, read_mat_tree
+from .swc import Skeleton, SWCError, read_swc, read_swc_skeleton, write_swc
+
+__all__ = [
+    "DatasetError", "LoadOptions", "LoadedSequence", "MatTreeError", "SWCError", "Skeleton",
+    "read_dataset", "read_mat_tree", "read_sequence", "read_swc", "read_swc_skeleton", "read_tree",
+    "sequence_folders", "time_from_name", "write_bytes_safely", "write_swc", "write_text_safely",
+]

@@ -1,0 +1,195 @@
+"""Sequence folders (one 4D tree) and dataset folders (several), SPEC §6.
+
+A **sequence folder** holds one file per frame (``.swc`` or reference ``.mat``). Frame times
+come, in this order of precedence, from
+
+1. a manifest ``times.json`` in the folder: ``{"<file name>": <time>, ...}`` (any unit); files
+   not listed are ignored, so the manifest also selects frames;
+2. the file names, all in the same style:
+   * a month and day as two 2-digit tokens (``03_05.mat``) or one 4-digit token (``T03_0305_a_seg.swc``)
+     -> days since January 1 (dates carry no year; a leap year is assumed),
+   * otherwise the last integer token (``frame_7.swc``, ``012.swc``) -> that number.
+
+Tokens are the parts of the name between ``_``, ``-``, ``.`` and spaces. Empty frames (the
+placeholder ``.mat`` files of removed days) are skipped and reported.
+
+A **dataset folder** holds one sequence folder per 4D tree (sorted by name); an optional
+``dataset.json`` may record metadata (the synthetic generator writes its settings there).
+"""
+
+from __future__ import annotations
+
+import datetime
+import json
+import re
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import torch
+
+from ..structures import DEFAULT_T, TreeError, Trees, TreeSequence
+from .mat import read_mat_tree
+from .swc import read_swc
+
+FRAME_SUFFIXES = (".swc", ".mat")
+TIMES_MANIFEST = "times.json"
+
+
+class DatasetError(TreeError):
+    """A sequence or dataset folder that does not follow the documented layout."""
+
+
+@dataclass
+class LoadOptions:
+    """How skeleton files become trees (the same for every frame of a dataset)."""
+
+    T: int = DEFAULT_T
+    max_layers: int | None = None
+    min_branch_length: float = 0.0
+    repair: bool = False
+    labels_from_type: bool = False
+    dtype: torch.dtype = torch.float32
+
+
+@dataclass
+class LoadedSequence:
+    """A sequence read from a folder, with the names of its frame files and skipped frames."""
+
+    sequence: TreeSequence
+    files: list[str]
+    skipped: list[str] = field(default_factory=list)
+
+
+def read_tree(path: str | Path, options: LoadOptions | None = None) -> Trees | None:
+    """Read one tree file (``.swc`` or reference ``.mat``); ``None`` for an empty ``.mat`` frame."""
+    o = options or LoadOptions()
+    path = Path(path)
+    if not path.is_file():
+        raise DatasetError(f"{path}: no such file")
+    if path.suffix.lower() == ".swc":
+        tree = read_swc(path, T=o.T, max_layers=o.max_layers, min_branch_length=o.min_branch_length,
+                        labels_from_type=o.labels_from_type, repair=o.repair)
+    elif path.suffix.lower() == ".mat":
+        tree = read_mat_tree(path, T=o.T)
+    else:
+        raise DatasetError(f"{path}: unknown tree file type (expected .swc or .mat)")
+    return None if tree is None else tree.to(o.dtype)
+
+
+def _tokens(name: str) -> list[str]:
+    return [t for t in re.split(r"[_\-. ]+", Path(name).stem) if t]
+
+
+def _day_of_year(month: int, day: int) -> int | None:
+    try:
+        return datetime.date(2020, month, day).timetuple().tm_yday
+    except ValueError:
+        return None
+
+
+def time_from_name(name: str) -> tuple[str, float] | None:
+    """``(style, time)`` parsed from a frame file name, or ``None`` (see the module doc)."""
+    toks = _tokens(name)
+    for a, b in zip(toks[:-1], toks[1:]):
+        if len(a) == 2 == len(b) and a.isdigit() and b.isdigit():
+            doy = _day_of_year(int(a), int(b))
+            if doy is not None:
+                return "date", float(doy)
+    for t in toks:
+        if len(t) == 4 and t.isdigit():
+            doy = _day_of_year(int(t[:2]), int(t[2:]))
+            if doy is not None:
+                return "date", float(doy)
+    ints = [t for t in toks if t.isdigit()]
+    return ("integer", float(ints[-1])) if ints else None
+
+
+def frame_times(folder: Path) -> list[tuple[Path, float]]:
+    """The frame files of a sequence folder with their times, sorted by time."""
+    manifest = folder / TIMES_MANIFEST
+    if manifest.exists():
+        try:
+            table = json.loads(manifest.read_text())
+            pairs = [(folder / str(k), float(v)) for k, v in table.items()]
+        except (ValueError, AttributeError, TypeError) as e:
+            raise DatasetError(f"{manifest}: expected a JSON object {{file name: time}} ({e})") from None
+        for p, _ in pairs:
+            if not p.is_file():
+                raise DatasetError(f"{manifest}: lists {p.name}, which is not in {folder}")
+    else:
+        files = sorted(p for p in folder.iterdir() if p.suffix.lower() in FRAME_SUFFIXES and p.is_file())
+        if not files:
+            raise DatasetError(f"{folder}: no frame files ({', '.join(FRAME_SUFFIXES)}) and no {TIMES_MANIFEST}")
+        parsed = {p: time_from_name(p.name) for p in files}
+        bad = [p.name for p, v in parsed.items() if v is None]
+        if bad:
+            raise DatasetError(f"{folder}: no time in the file name {bad[0]!r}; name frames by date "
+                               f"(MMDD, MM_DD) or number, or add {TIMES_MANIFEST}")
+        styles = {v[0] for v in parsed.values() if v}
+        if len(styles) > 1:
+            raise DatasetError(f"{folder}: file names mix dates and plain numbers; add {TIMES_MANIFEST}")
+        pairs = [(p, v[1]) for p, v in parsed.items() if v]
+    pairs.sort(key=lambda pt: pt[1])
+    for (p1, t1), (p2, t2) in zip(pairs[:-1], pairs[1:]):
+        if t1 == t2:
+            raise DatasetError(f"{folder}: {p1.name} and {p2.name} have the same time {t1:g}")
+    return pairs
+
+
+def read_sequence(
+    folder: str | Path,
+    options: LoadOptions | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> LoadedSequence:
+    """Read a sequence folder as a :class:`TreeSequence` (empty frames skipped)."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise DatasetError(f"{folder}: not a folder")
+    frames: list[Trees] = []
+    times: list[float] = []
+    used: list[str] = []
+    skipped: list[str] = []
+    for path, t in frame_times(folder):
+        if progress:
+            progress(path.name)
+        tree = read_tree(path, options)
+        if tree is None:
+            skipped.append(path.name)
+            continue
+        frames.append(tree)
+        times.append(t)
+        used.append(path.name)
+    if not frames:
+        raise DatasetError(f"{folder}: every frame is empty")
+    dtype = frames[0].dtype
+    seq = TreeSequence(Trees.cat(frames), torch.tensor(times, dtype=dtype), folder.name)
+    return LoadedSequence(seq, used, skipped)
+
+
+def is_sequence_folder(folder: Path) -> bool:
+    """True if the folder holds frame files (or a times manifest) directly."""
+    return (folder / TIMES_MANIFEST).exists() or any(
+        p.suffix.lower() in FRAME_SUFFIXES for p in folder.iterdir() if p.is_file()
+    )
+
+
+def sequence_folders(folder: str | Path) -> list[Path]:
+    """The sequence folders of a dataset folder, sorted by name."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise DatasetError(f"{folder}: not a folder")
+    subs = sorted(p for p in folder.iterdir() if p.is_dir() and not p.name.startswith("."))
+    seqs = [p for p in subs if is_sequence_folder(p)]
+    if not seqs:
+        raise DatasetError(f"{folder}: no sequence folders (subfolders holding .swc or .mat frames)")
+    return seqs
+
+
+def read_dataset(
+    folder: str | Path,
+    options: LoadOptions | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> list[LoadedSequence]:
+    """Read every sequence folder of a dataset folder."""
+    return [read_sequence(p, options, progress) for p in sequence_folders(folder)]

@@ -1,0 +1,123 @@
+"""SWC skeleton files: 7 columns ``id type x y z radius parent``, ``#`` comments (SPEC §6)."""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..skeleton import repair_skeleton, skeleton_to_trees, trees_to_skeleton, validate_skeleton
+from ..structures import DEFAULT_T, TreeError, Trees
+from .files import write_text_safely
+
+
+class SWCError(TreeError):
+    """A malformed SWC file; the message names the file and the line or node."""
+
+
+@dataclass(frozen=True)
+class Skeleton:
+    """A skeleton graph read from a file.
+
+    Attributes:
+        xyz: ``(n, 3)`` coordinates. parent: ``(n,)`` parent index (``-1`` root).
+        ids: ``(n,)`` the file's node ids. types: ``(n,)`` the type column. radius: ``(n,)``.
+    """
+
+    xyz: np.ndarray
+    parent: np.ndarray
+    ids: np.ndarray
+    types: np.ndarray
+    radius: np.ndarray
+    source: str
+
+
+def read_swc_skeleton(path: str | Path, repair: bool = False) -> Skeleton:
+    """Parse and validate an SWC file (one root, known parents, no cycles, finite numbers).
+
+    With ``repair``, cycles and parts cut off from the root are mended (see
+    :func:`~torch4dtree.skeleton.repair_skeleton`) with a warning instead of an error: one
+    published Pheno4D file (tomato_1, March 25) needs it.
+    """
+    path = Path(path)
+    rows: list[tuple[int, int, float, float, float, float, int]] = []
+    line_of: dict[int, int] = {}
+    with open(path, encoding="utf-8", errors="replace") as f:
+        for lineno, line in enumerate(f, 1):
+            text = line.split("#", 1)[0].strip()
+            if not text:
+                continue
+            cols = text.split()
+            if len(cols) != 7:
+                raise SWCError(f"{path}:{lineno}: expected 7 columns (id type x y z radius parent), got {len(cols)}")
+            try:
+                nid, typ, par = int(cols[0]), int(float(cols[1])), int(cols[6])
+                x, y, z, r = (float(c) for c in cols[2:6])
+            except ValueError:
+                raise SWCError(f"{path}:{lineno}: non-numeric value in {text!r}") from None
+            if not all(math.isfinite(v) for v in (x, y, z)):
+                raise SWCError(f"{path}:{lineno}: node {nid} has NaN or infinite coordinates")
+            if nid in line_of:
+                raise SWCError(f"{path}:{lineno}: duplicate node id {nid} (first on line {line_of[nid]})")
+            line_of[nid] = lineno
+            rows.append((nid, typ, x, y, z, r, par))
+    if not rows:
+        raise SWCError(f"{path}: empty file (no nodes)")
+    ids = np.array([r[0] for r in rows])
+    index = {nid: i for i, nid in enumerate(ids.tolist())}
+    parent = np.empty(len(rows), dtype=np.int64)
+    for i, r in enumerate(rows):
+        if r[6] == -1:
+            parent[i] = -1
+        elif r[6] in index:
+            parent[i] = index[r[6]]
+        else:
+            raise SWCError(f"{path}:{line_of[r[0]]}: node {r[0]} has parent {r[6]}, which does not exist")
+    xyz = np.array([r[2:5] for r in rows], dtype=np.float64)
+    roots = np.nonzero(parent == -1)[0]
+    if len(roots) > 1:
+        lines = ", ".join(str(line_of[int(ids[i])]) for i in roots[:5])
+        raise SWCError(f"{path}: {len(roots)} roots (parent -1) on lines {lines}; an SWC tree has exactly one")
+    try:
+        validate_skeleton(xyz, parent, str(path), ids)
+    except TreeError as e:
+        if not repair or "not connected" not in str(e):
+            hint = " (pass repair=True / --repair to mend it)" if "not connected" in str(e) else ""
+            raise SWCError(f"{e}{hint}") from None
+        parent, messages = repair_skeleton(xyz, parent, ids)
+        for m in messages:
+            warnings.warn(f"{path}: repaired: {m}", stacklevel=2)
+    return Skeleton(xyz, parent, ids, np.array([r[1] for r in rows]), np.array([r[5] for r in rows]), str(path))
+
+
+def read_swc(
+    path: str | Path,
+    T: int = DEFAULT_T,
+    max_layers: int | None = None,
+    min_branch_length: float = 0.0,
+    labels_from_type: bool = False,
+    repair: bool = False,
+) -> Trees:
+    """Read an SWC file as a single-tree :class:`Trees` (longest-path rule, SPEC §2).
+
+    With ``labels_from_type`` the type column holds branch identities (as the synthetic plants
+    write them) and becomes :attr:`Trees.label`.
+    """
+    sk = read_swc_skeleton(path, repair)
+    return skeleton_to_trees(
+        sk.xyz, sk.parent, T=T, max_layers=max_layers, min_branch_length=min_branch_length,
+        node_labels=sk.types if labels_from_type else None, where=str(path), ids=sk.ids,
+    )
+
+
+def write_swc(path: str | Path, tree: Trees, overwrite: bool = False, comment: str = "") -> Path:
+    """Write one tree as SWC (labels in the type column). Refuses to replace a file unless ``overwrite``."""
+    xyz, parent, label = trees_to_skeleton(tree)
+    lines = [f"# {c}" for c in comment.splitlines()] if comment else []
+    lines.append("# id type x y z radius parent (written by torch4dtree)")
+    for i, (p, q, lab) in enumerate(zip(xyz, parent, label)):
+        lines.append(f"{i + 1} {max(int(lab), 0)} {p[0]:.6f} {p[1]:.6f} {p[2]:.6f} 1.0 {q + 1 if q >= 0 else -1}")
+    return write_text_safely(Path(path), "\n".join(lines) + "\n", overwrite)
