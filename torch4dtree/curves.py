@@ -136,26 +136,22 @@ def resample_polylines(points: Tensor, counts: Tensor, T: int) -> Tensor:
 
 
 def project_on_polyline(beta: Tensor, x: Tensor) -> tuple[Tensor, Tensor]:
-    """Closest point of each polyline to a point, as an arc-length fraction.
+    """Closest point of each polyline to a point, as a curve parameter.
 
     Args:
-        beta: ``(B, T, d)`` polylines (uniform in arc length, so fraction = parameter).
+        beta: ``(B, T, d)`` polylines on the uniform grid (for curves resampled uniformly in arc
+            length, the parameter is the arc-length fraction).
         x: ``(B, d)`` points.
 
     Returns:
-        ``s (B,)`` the arc-length fraction of the projection, ``dist (B,)`` the distance to it.
+        ``s (B,)`` the parameter of the closest point (``interpolate_curve(beta, s)`` gives it back),
+        ``dist (B,)`` the distance to it.
     """
     a, b = beta[:, :-1], beta[:, 1:]
     ab = b - a
     denom = (ab * ab).sum(-1)
-    u = ((x.unsqueeze(1) - a) * ab).sum(-1) / torch.where(denom > 0, denom, 1)
-    u = u.clamp(0, 1)
-    closest = a + u.unsqueeze(-1) * ab
-    dist = (closest - x.unsqueeze(1)).norm(dim=-1)  # (B, T-1)
-    best = dist.argmin(1)
-    seg_len = ab.norm(dim=-1)
-    cum = torch.cat([seg_len.new_zeros(len(beta), 1), seg_len.cumsum(1)], dim=1)
-    total = cum[:, -1]
-    along = cum.gather(1, best[:, None])[:, 0] + u.gather(1, best[:, None])[:, 0] * seg_len.gather(1, best[:, None])[:, 0]
-    s = torch.where(total > 0, along / torch.where(total > 0, total, 1), torch.zeros_like(total))
-    return s, dist.gather(1, best[:, None])[:, 0]
+    u = (((x.unsqueeze(1) - a) * ab).sum(-1) / torch.where(denom > 0, denom, 1)).clamp(0, 1)
+    dist = (a + u.unsqueeze(-1) * ab - x.unsqueeze(1)).norm(dim=-1)  # (B, T-1)
+    best = dist.argmin(1, keepdim=True)
+    s = (best[:, 0] + u.gather(1, best)[:, 0]) / (beta.shape[1] - 1)
+    return s, dist.gather(1, best)[:, 0]
