@@ -1,0 +1,137 @@
+"""Writing synthetic plants as a dataset folder (the layout of :mod:`torch4dtree.io.dataset`).
+
+Layout written by :func:`write_dataset`::
+
+    out/
+      dataset.json              kind, seed, settings, label scheme and, per plant, the ground
+                                truth: its seed, frame times, normalised times, biological times
+                                and growth warp h on its grid
+      tomato_00/
+        times.json              {"day_000.swc": 0.0, "day_002.swc": 2.0, ...}
+        day_000.swc             one SWC per frame; branch labels in the type column
+        ...
+      tomato_01/ ...
+
+Read it back with ``read_dataset(out, LoadOptions(labels_from_type=True))``.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from collections.abc import Sequence
+from pathlib import Path
+
+from ..io import write_swc, write_text_safely
+from ..io.dataset import TIMES_MANIFEST
+from .synthetic import SyntheticPlant, synthetic_dataset
+
+DATASET_MANIFEST = "dataset.json"
+FORMAT = "torch4dtree-synthetic"
+FORMAT_VERSION = 1
+
+LABEL_SCHEME = (
+    "0 main stem; k (1..99) k-th leaf from the bottom (tomato: 1, 2 cotyledons); k*100+j leaflet j of leaf k "
+    "(j = 2p-1 / 2p: left / right leaflet of pair p from the leaf base); (k*100+j)*100+m lobe m of that leaflet"
+)
+
+
+def frame_file_name(time: float, index: int) -> str:
+    """``day_007.swc`` for a whole-number time, else ``frame_03.swc`` (the manifest holds the time)."""
+    return f"day_{int(time):03d}.swc" if float(time).is_integer() and time >= 0 else f"frame_{index:02d}.swc"
+
+
+def _plant_folder_names(plants: Sequence[SyntheticPlant]) -> list[str]:
+    names = [p.name or f"{p.kind}_{i:02d}" for i, p in enumerate(plants)]
+    if len(set(names)) != len(names):  # plants generated one by one may share default names
+        names = [f"{p.kind}_{i:02d}" for i, p in enumerate(plants)]
+    return names
+
+
+def _remove_old_plants(out: Path, keep: set[str]) -> None:
+    """With ``overwrite``: delete plant folders an earlier synthetic dataset.json listed and we do not rewrite.
+
+    Only folders named in our own manifest are touched, and in them only their frames and times
+    manifest, so user files are never removed.
+    """
+    manifest = out / DATASET_MANIFEST
+    try:
+        old = json.loads(manifest.read_text())
+        if old.get("format") != FORMAT:
+            return
+        old_names = [p["folder"] for p in old.get("plants", [])]
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return
+    for name in old_names:
+        folder = out / str(name)
+        if name in keep or not folder.is_dir() or folder.resolve().parent != out.resolve():
+            continue
+        for f in folder.iterdir():
+            if f.is_file() and (f.suffix.lower() == ".swc" or f.name == TIMES_MANIFEST):
+                f.unlink()
+        if not any(folder.iterdir()):
+            shutil.rmtree(folder)
+
+
+def write_dataset(plants: Sequence[SyntheticPlant], out_dir: str | Path, overwrite: bool = False) -> Path:
+    """Write plants as a dataset folder with their ground truth (layout in the module doc).
+
+    Refuses (``FileExistsError``) when ``out_dir`` exists and is not empty, unless ``overwrite``;
+    then files of the same names are replaced and plant folders of an earlier synthetic dataset
+    that are not rewritten lose their frames. Returns ``out_dir``.
+    """
+    if not plants:
+        raise ValueError("no plants to write")
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise FileExistsError(f"{out} exists and is not a folder")
+    if out.is_dir() and any(out.iterdir()) and not overwrite:
+        raise FileExistsError(f"{out} exists and is not empty; pass overwrite=True (--overwrite) to write into it")
+    names = _plant_folder_names(plants)
+    if overwrite and out.is_dir():
+        _remove_old_plants(out, set(names))
+    out.mkdir(parents=True, exist_ok=True)
+    records = []
+    for name, plant in zip(names, plants):
+        folder = out / name
+        times = plant.times.tolist()
+        files = [frame_file_name(t, j) for j, t in enumerate(times)]
+        if len(set(files)) != len(files):
+            files = [f"frame_{j:02d}.swc" for j in range(len(times))]
+        for j, (tree, fname) in enumerate(zip(plant.sequence.frames.split(), files)):
+            comment = f"synthetic {plant.kind} plant {name} (seed {plant.seed}), frame {j}, time {times[j]:g}"
+            write_swc(folder / fname, tree, overwrite=overwrite, comment=comment)
+        manifest = {f: float(t) for f, t in zip(files, times)}
+        write_text_safely(folder / TIMES_MANIFEST, json.dumps(manifest, indent=1) + "\n", overwrite)
+        records.append({
+            "folder": name,
+            "kind": plant.kind,
+            "seed": plant.seed,
+            "files": files,
+            "times": [float(t) for t in times],
+            "normalized_times": plant.sequence.normalized_times().double().tolist(),
+            "bio_times": plant.bio_times.double().tolist(),
+            "growth_warp": {"grid": plant.growth_grid.double().tolist(), "values": plant.growth_warp.double().tolist()},
+            "labels_per_frame": plant.labels_per_frame(),
+            "settings": plant.settings,
+        })
+    kinds = sorted({p.kind for p in plants})
+    dataset_seed = {p.settings.get("dataset_seed") for p in plants}
+    meta = {
+        "format": FORMAT,
+        "version": FORMAT_VERSION,
+        "kind": kinds[0] if len(kinds) == 1 else "mixed",
+        "seed": dataset_seed.pop() if len(dataset_seed) == 1 else None,
+        "units": "mm, z up, root at the origin",
+        "label_scheme": LABEL_SCHEME,
+        "growth_warp": "biological time = h(normalised calendar time); h piecewise linear on its grid",
+        "settings": plants[0].settings,
+        "plants": records,
+    }
+    write_text_safely(out / DATASET_MANIFEST, json.dumps(meta, indent=1) + "\n", overwrite)
+    return out
+
+
+def run_synth(kind: str, plants: int, seed: int, out: str, frames: int = 10, overwrite: bool = False) -> Path:
+    """What ``torch4dtree synth --kind K --plants N --seed S --out DIR`` does: generate and write a dataset."""
+    return write_dataset(synthetic_dataset(kind, plants, seed, n_frames=frames), out, overwrite=overwrite)
