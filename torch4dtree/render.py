@@ -1,0 +1,902 @@
+"""Offscreen rendering of trees and 4D trees: tubes, pyrender frames, PNG / GIF / MP4, grids.
+
+Pipeline: every branch becomes a tube (vectorised in numpy, one merged mesh per tree), a camera
+is fitted once to **all** trees that will be shown together (a whole sequence, a whole grid) so
+growth and differences stay visible, and pyrender draws the frames offscreen through EGL
+(Mesa's software renderer ``llvmpipe`` serves when there is no GPU).
+
+Public API::
+
+    render_trees(trees, **options)            -> (n_trees, H, W, 3) uint8, one frame per tree
+    render_sequence(seq, n_frames, **options) -> (n_frames, H, W, 3) uint8, a video over time
+    render_grid(rows, row_labels, col_labels, title, video=False, **options)
+                                              -> (H, W, 3) image (rows x time) or (n, H, W, 3) frames
+    tree_meshes(trees, **options)             -> one trimesh.Trimesh per tree
+    save_image(path, image) / save_video(path, frames, fps) / save_frames(folder, frames)
+
+``options`` are the fields of :class:`RenderOptions` (``size``, ``view``, ``color``, ``radius``...).
+``pyrender``, ``trimesh``, ``imageio`` and ``Pillow`` are imported lazily, so ``import torch4dtree``
+never needs OpenGL.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+import tempfile
+from collections.abc import Sequence
+from dataclasses import dataclass, fields, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .io.files import write_bytes_safely
+from .structures import DEFAULT_T, TreeError, Trees, TreeSequence
+
+__all__ = [
+    "GL_PACKAGES", "LABEL_PALETTE", "LAYER_COLORS", "UNLABELLED_COLOR", "VIEWS", "RenderOptions",
+    "add_render_arguments", "branch_colors", "render_grid", "render_sequence", "render_trees", "run_render",
+    "save_frames", "save_image", "save_video", "tree_meshes",
+]
+
+# Layer colours of the paper's figures: red main branch, blue, yellow, purple, then green, orange, cyan.
+LAYER_COLORS: np.ndarray = np.array(
+    [[214, 39, 40], [31, 94, 214], [240, 196, 25], [148, 62, 184], [44, 160, 44], [255, 127, 14], [23, 190, 207]],
+    dtype=np.uint8,
+)
+# Correspondence colours (label l -> LABEL_PALETTE[l % 20]): distinct, saturated, no grey.
+LABEL_PALETTE: np.ndarray = np.array(
+    [[230, 25, 75], [60, 180, 75], [0, 130, 200], [245, 130, 48], [145, 30, 180], [70, 240, 240],
+     [240, 50, 230], [210, 245, 60], [0, 128, 128], [170, 110, 40], [128, 0, 0], [0, 0, 128],
+     [128, 128, 0], [255, 225, 25], [250, 190, 212], [170, 255, 195], [220, 190, 255], [255, 215, 180],
+     [0, 200, 120], [100, 60, 200]],
+    dtype=np.uint8,
+)
+UNLABELLED_COLOR: np.ndarray = np.array([150, 150, 150], dtype=np.uint8)
+VIEWS = ("front", "side", "top", "orbit")
+COLOR_MODES = ("layer", "label")
+VIDEO_SUFFIXES = (".gif", ".mp4")
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+# Debian/Ubuntu packages that give pyrender an EGL context on Mesa's software renderer (see .ci/system-packages.sh).
+GL_PACKAGES = "libegl1 libegl-mesa0 libgl1 libgl1-mesa-dri"
+
+
+@dataclass(frozen=True)
+class RenderOptions:
+    """How trees are drawn. Every render function accepts these fields as keyword arguments.
+
+    Attributes:
+        size: frame (or grid cell) size in pixels, ``W`` or ``(W, H)``.
+        view: ``front`` (looking along +y), ``side`` (along -x), ``top`` (down the up axis) or
+            ``orbit`` (the camera circles the plant over the frames).
+        elevation: camera height above the horizontal plane in degrees (front, side, orbit).
+        azimuth: extra turn of the camera about the up axis in degrees.
+        color: ``layer`` (red main, blue, yellow, purple, ...) or ``label`` (equal labels share a
+            colour from :data:`LABEL_PALETTE`, label -1 grey).
+        radius: main-branch tube radius as a fraction of the largest side of the scene's bounding box.
+        thinning: radius factor per layer (layer ``d`` has ``radius * thinning**d``).
+        taper: how much a tube narrows from its base to its tip (0 = cylinder).
+        min_pixels: smallest tube radius in pixels, so thin deep branches stay visible at small sizes.
+        sides: polygon sides of a tube's cross-section.
+        margin: fraction of the frame left empty on every side.
+        fog: how much the farthest parts fade towards the white background (depth cue, 0 = none).
+        yfov: vertical field of view in degrees (perspective camera).
+        up: index of the up axis (2 = z, as in Pheno4D).
+        turns: full camera turns over an orbit.
+    """
+
+    size: int | tuple[int, int] = 512
+    view: str = "front"
+    elevation: float = 12.0
+    azimuth: float = 0.0
+    color: str = "layer"
+    radius: float = 0.009
+    thinning: float = 0.7
+    taper: float = 0.35
+    min_pixels: float = 0.75
+    sides: int = 8
+    margin: float = 0.05
+    fog: float = 0.35
+    yfov: float = 30.0
+    up: int = 2
+    turns: float = 1.0
+
+    def __post_init__(self) -> None:
+        if self.view not in VIEWS:
+            raise ValueError(f"view must be one of {VIEWS}, got {self.view!r}")
+        if self.color not in COLOR_MODES:
+            raise ValueError(f"color must be one of {COLOR_MODES}, got {self.color!r}")
+        w, h = self.wh
+        if w < 8 or h < 8:
+            raise ValueError(f"size must be at least 8 x 8 pixels, got {self.size}")
+        if self.sides < 3 or self.radius <= 0 or not 0 <= self.taper < 1 or not 0 <= self.margin < 0.5:
+            raise ValueError("need sides >= 3, radius > 0, 0 <= taper < 1 and 0 <= margin < 0.5")
+        if self.up not in (0, 1, 2):
+            raise ValueError(f"up must be 0, 1 or 2, got {self.up}")
+
+    @property
+    def wh(self) -> tuple[int, int]:
+        """``(W, H)`` in pixels."""
+        if isinstance(self.size, int):
+            return int(self.size), int(self.size)
+        return int(self.size[0]), int(self.size[1])
+
+
+def _options(options: RenderOptions | None, overrides: dict[str, Any]) -> RenderOptions:
+    known = {f.name for f in fields(RenderOptions)}
+    unknown = set(overrides) - known
+    if unknown:
+        raise TypeError(f"unknown render option(s) {sorted(unknown)}; known: {sorted(known)}")
+    return replace(options or RenderOptions(), **overrides)
+
+
+# ------------------------------------------------------------------------------------ geometry
+def branch_colors(trees: Trees, color: str = "layer") -> np.ndarray:
+    """``(N, 3)`` uint8 sRGB colour of every packed branch, by layer or by label."""
+    if color == "layer":
+        depth = trees.depth.cpu().numpy()
+        return LAYER_COLORS[np.minimum(depth, len(LAYER_COLORS) - 1)]
+    if color == "label":
+        label = trees.label.cpu().numpy()
+        out = LABEL_PALETTE[np.mod(label, len(LABEL_PALETTE))]
+        out[label < 0] = UNLABELLED_COLOR
+        return out
+    raise ValueError(f"color must be one of {COLOR_MODES}, got {color!r}")
+
+
+def _unit(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Normalised vectors ``(..., 3)`` and their norms ``(...)``."""
+    n = np.linalg.norm(v, axis=-1)
+    return v / np.maximum(n, 1e-300)[..., None], n
+
+
+def _tube_frames(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation-minimising normal and binormal ``(N, T, 3)`` along polylines ``(N, T, 3)``.
+
+    The normal is carried from point to point by projection on the next normal plane
+    (vectorised over branches, a loop over the ``T`` samples), so tubes do not twist.
+    """
+    N, T, _ = points.shape
+    tang = np.empty_like(points)
+    tang[:, 1:-1] = points[:, 2:] - points[:, :-2]  # central differences are smoother than one-sided
+    tang[:, 0] = points[:, 1] - points[:, 0]
+    tang[:, -1] = points[:, -1] - points[:, -2]
+    tang, tn = _unit(tang)
+    for i in range(1, T):  # a stalled sample (repeated point) keeps the previous direction
+        stalled = tn[:, i] < 1e-12
+        tang[stalled, i] = tang[stalled, i - 1]
+    axes = np.eye(3)
+    normal = np.empty_like(points)
+    n0 = np.cross(tang[:, 0], axes[np.argmin(np.abs(tang[:, 0]), axis=1)])
+    normal[:, 0] = _unit(n0)[0]
+    for i in range(1, T):
+        t = tang[:, i]
+        n = normal[:, i - 1] - (normal[:, i - 1] * t).sum(-1, keepdims=True) * t
+        n, nn = _unit(n)
+        bad = nn < 1e-6  # a turn of ~90 degrees between samples: restart from a fixed axis
+        if bad.any():
+            n[bad] = _unit(np.cross(t[bad], axes[np.argmin(np.abs(t[bad]), axis=1)]))[0]
+        normal[:, i] = n
+    return normal, np.cross(tang, normal)
+
+
+def _tube_template(T: int, K: int) -> np.ndarray:
+    """``(F, 3)`` triangle indices of one tube: ``T`` rings of ``K`` vertices, then two cap centres."""
+    i, k = np.meshgrid(np.arange(T - 1), np.arange(K), indexing="ij")
+    a = i * K + k
+    b = i * K + (k + 1) % K
+    c = (i + 1) * K + k
+    d = (i + 1) * K + (k + 1) % K
+    side = np.concatenate([np.stack([a, b, c], -1).reshape(-1, 3), np.stack([b, d, c], -1).reshape(-1, 3)])
+    ring = np.arange(K)
+    start, end = T * K, T * K + 1
+    cap0 = np.stack([np.full(K, start), (ring + 1) % K, ring], -1)  # wound to face backwards
+    cap1 = np.stack([np.full(K, end), (T - 1) * K + ring, (T - 1) * K + (ring + 1) % K], -1)
+    return np.concatenate([side, cap0, cap1]).astype(np.int64)
+
+
+@dataclass
+class _Geometry:
+    """One tree's merged tube mesh (``V`` vertices, ``F`` triangles)."""
+
+    vertices: np.ndarray  # (V, 3) float32
+    normals: np.ndarray  # (V, 3) float32
+    colors: np.ndarray  # (V, 3) uint8 sRGB
+    faces: np.ndarray  # (F, 3) uint32
+
+
+def _tree_geometry(trees: Trees, opts: RenderOptions, base_radius: float, min_radius: float) -> list[_Geometry]:
+    """One merged tube mesh per tree; all branches of all trees are built in one vectorised pass."""
+    pts = trees.points.detach().cpu().double().numpy()  # (N, T, 3)
+    N, T, _ = pts.shape
+    K = opts.sides
+    depth = trees.depth.cpu().numpy()
+    colors = branch_colors(trees, opts.color)
+    tree_of = trees.tree_index.cpu().numpy()
+    seg = np.linalg.norm(np.diff(pts, axis=1), axis=-1)
+    keep = seg.sum(1) > 1e-9 * max(base_radius, 1e-12)  # null branches (zero length) are not drawn
+    pts, depth, colors, tree_of = pts[keep], depth[keep], colors[keep], tree_of[keep]
+    n = len(pts)
+    out: list[_Geometry] = []
+    if n:
+        normal, binormal = _tube_frames(pts)
+        # radius: thinner per layer, tapering along the branch, never under min_radius
+        s = np.concatenate([np.zeros((n, 1)), np.cumsum(np.linalg.norm(np.diff(pts, axis=1), axis=-1), 1)], 1)
+        s /= np.maximum(s[:, -1:], 1e-300)
+        r = base_radius * opts.thinning ** depth[:, None] * (1.0 - opts.taper * s)
+        r = np.maximum(r, min_radius)  # (n, T)
+        theta = 2 * np.pi * np.arange(K) / K
+        radial = (np.cos(theta)[None, None, :, None] * normal[:, :, None]
+                  + np.sin(theta)[None, None, :, None] * binormal[:, :, None])  # (n, T, K, 3)
+        ring = pts[:, :, None] + r[:, :, None, None] * radial
+        tang = _unit(pts[:, -1] - pts[:, -2])[0]
+        tang0 = _unit(pts[:, 1] - pts[:, 0])[0]
+        verts = np.concatenate([ring.reshape(n, T * K, 3), pts[:, :1], pts[:, -1:]], 1)  # (n, Vb, 3)
+        norms = np.concatenate([radial.reshape(n, T * K, 3), -tang0[:, None], tang[:, None]], 1)
+        Vb = T * K + 2
+        template = _tube_template(T, K)
+    bounds = np.searchsorted(tree_of, np.arange(trees.num_trees + 1)) if n else np.zeros(trees.num_trees + 1, int)
+    for t in range(trees.num_trees):
+        a, b = int(bounds[t]), int(bounds[t + 1])
+        if b == a:  # nothing to draw (every branch null)
+            out.append(_Geometry(np.zeros((0, 3), np.float32), np.zeros((0, 3), np.float32),
+                                 np.zeros((0, 3), np.uint8), np.zeros((0, 3), np.uint32)))
+            continue
+        faces = template[None] + (np.arange(b - a) * Vb)[:, None, None]
+        out.append(_Geometry(
+            verts[a:b].reshape(-1, 3).astype(np.float32),
+            norms[a:b].reshape(-1, 3).astype(np.float32),
+            np.repeat(colors[a:b], Vb, axis=0),
+            faces.reshape(-1, 3).astype(np.uint32),
+        ))
+    return out
+
+
+# -------------------------------------------------------------------------------------- camera
+@dataclass
+class _Framing:
+    """A camera fitted to a set of points: one pose per frame, fixed intrinsics."""
+
+    poses: list[np.ndarray]  # (4, 4) camera-to-world, camera looks along its -z
+    yfov: float  # radians
+    aspect: float
+    znear: float
+    zfar: float
+    pixel: float  # world size of one pixel at the scene's centre depth
+    scale: float  # largest side of the scene's bounding box
+    near: float  # depth range of the fog: none in front of ``near``, full at ``far``
+    far: float
+
+
+def _camera_axes(azimuth: float, elevation: float, up: int) -> np.ndarray:
+    """``(3, 3)`` rows = camera right, up and backward axes in world coordinates (degrees in)."""
+    u = np.eye(3)[up]
+    h1, h2 = np.eye(3)[(up + 1) % 3], np.eye(3)[(up + 2) % 3]
+    a, e = math.radians(azimuth), math.radians(elevation)
+    back = math.cos(e) * (math.sin(a) * h1 - math.cos(a) * h2) + math.sin(e) * u
+    right = math.cos(a) * h1 + math.sin(a) * h2
+    return np.stack([right, np.cross(back, right), back])
+
+
+def _frame_azimuths(opts: RenderOptions, n: int) -> list[float]:
+    """Camera azimuth of each of ``n`` frames (turning only for ``orbit``)."""
+    base = {"front": 0.0, "side": 90.0, "top": 0.0, "orbit": 0.0}[opts.view] + opts.azimuth
+    if opts.view != "orbit":
+        return [base] * n
+    return [base + 360.0 * opts.turns * k / max(n, 1) for k in range(n)]
+
+
+def _fit_camera(points: np.ndarray, azimuths: Sequence[float], opts: RenderOptions) -> _Framing:
+    """A perspective camera that keeps every point (plus tube radius) inside the frame at every azimuth.
+
+    Args:
+        points: ``(P, 3)`` all branch points of everything that will be shown.
+        azimuths: one camera azimuth (degrees) per frame; a single fixed target and distance
+            serve all of them, so nothing jumps between frames.
+    """
+    lo, hi = points.min(0), points.max(0)
+    scale = float(max((hi - lo).max(), 1e-9))
+    center = (lo + hi) / 2
+    pad = opts.radius * scale  # the thickest tube's radius
+    W, H = opts.wh
+    aspect = W / H
+    ty = math.tan(math.radians(opts.yfov) / 2) * (1 - 2 * opts.margin)
+    tx = ty * aspect
+    elevation = 90.0 if opts.view == "top" else opts.elevation
+    rel = points - center
+    axes = [_camera_axes(a, elevation, opts.up) for a in azimuths]
+    unique = {round(a % 360.0, 9): R for a, R in zip(azimuths, axes)}
+    cams = [rel @ R.T for R in unique.values()]  # (P, 3) camera-frame coordinates per distinct azimuth
+
+    def distance(ox: float, oy: float) -> float:
+        # smallest D with |x - ox| / (D - z) <= tx and |y - oy| / (D - z) <= ty for every point and azimuth
+        return max(float(np.max(q[:, 2] + pad + np.maximum((np.abs(q[:, 0] - ox) + pad) / tx,
+                                                             (np.abs(q[:, 1] - oy) + pad) / ty))) for q in cams)
+
+    # centre the projected extent: shifting the camera sideways is linear, iterate a few times
+    ox = 0.0 if opts.view == "orbit" else float((cams[0][:, 0].min() + cams[0][:, 0].max()) / 2)
+    oy = float(np.mean([(q[:, 1].min() + q[:, 1].max()) / 2 for q in cams]))
+    for _ in range(4):
+        D = distance(ox, oy)
+        depth = D - np.concatenate([q[:, 2] for q in cams])
+        u = (np.concatenate([q[:, 0] for q in cams]) - ox) / depth
+        v = (np.concatenate([q[:, 1] for q in cams]) - oy) / depth
+        if opts.view != "orbit":
+            ox += float((u.min() + u.max()) / 2 * D)
+        oy += float((v.min() + v.max()) / 2 * D)
+    D = distance(ox, oy)
+    poses = []
+    for R in axes:
+        pose = np.eye(4)
+        pose[:3, :3] = R.T
+        pose[:3, 3] = center + ox * R[0] + oy * R[1] + D * R[2]
+        poses.append(pose)
+    radius = float(np.linalg.norm(hi - lo)) / 2 + pad
+    znear = max(D - radius, 1e-3 * D) * 0.9
+    zfar = (D + radius) * 1.1
+    pixel = 2 * D * math.tan(math.radians(opts.yfov) / 2) / H
+    return _Framing(poses, math.radians(opts.yfov), aspect, znear, zfar, pixel, scale, D - 0.3 * radius, D + radius)
+
+
+def _all_points(batches: Sequence[Trees]) -> np.ndarray:
+    """``(P, 3)`` every branch point of every batch (the extent to frame)."""
+    pts = [b.points.detach().cpu().double().numpy().reshape(-1, b.dim) for b in batches]
+    out = np.concatenate(pts)
+    if out.shape[1] != 3:
+        raise TreeError(f"only 3D trees can be rendered, got dimension {out.shape[1]}")
+    return out
+
+
+# ------------------------------------------------------------------------------------ renderer
+_RENDERER: Any = None
+
+
+def _gl_error(err: BaseException) -> RuntimeError:
+    return RuntimeError(
+        f"offscreen OpenGL (EGL) rendering is unavailable: {type(err).__name__}: {err}. "
+        f"Install the system libraries (Debian/Ubuntu: `apt-get install -y {GL_PACKAGES}`, or run "
+        f".ci/system-packages.sh); with a GPU driver, its EGL vendor library works too. "
+        f"PYOPENGL_PLATFORM={os.environ.get('PYOPENGL_PLATFORM')!r}."
+    )
+
+
+def _pyrender() -> Any:
+    """Import pyrender on EGL, turning a missing package or GL library into a clear error."""
+    os.environ.setdefault("PYOPENGL_PLATFORM", "egl")  # before OpenGL is first imported
+    try:
+        import pyrender
+    except ModuleNotFoundError as e:
+        if e.name and e.name.split(".")[0] in ("pyrender", "trimesh", "OpenGL", "pyglet"):
+            raise ModuleNotFoundError(
+                f"rendering needs the 'render' extra: pip install 'torch4dtree[render]' ({e})", name=e.name
+            ) from e
+        raise
+    except Exception as e:  # ImportError('Unable to load EGL library'), OSError, AttributeError...
+        raise _gl_error(e) from e
+    return pyrender
+
+
+def _renderer(W: int, H: int) -> Any:
+    """The process-wide offscreen renderer (creating an EGL context per frame is slow)."""
+    global _RENDERER
+    pyrender = _pyrender()
+    if _RENDERER is None:
+        try:
+            _RENDERER = pyrender.OffscreenRenderer(W, H)
+        except Exception as e:
+            raise _gl_error(e) from e
+        import atexit
+
+        atexit.register(close_renderer)
+    _RENDERER.viewport_width, _RENDERER.viewport_height = W, H
+    return _RENDERER
+
+
+def close_renderer() -> None:
+    """Release the offscreen GL context (it is re-created on the next render)."""
+    global _RENDERER
+    if _RENDERER is not None:
+        try:
+            _RENDERER.delete()
+        except Exception:  # noqa: S110 - tearing down a dead context at exit is best effort
+            pass
+        _RENDERER = None
+
+
+def _look_pose(direction: Sequence[float]) -> np.ndarray:
+    """``(4, 4)`` pose whose -z axis points along ``direction`` (light travel, camera frame)."""
+    z = -_unit(np.asarray(direction, float))[0]
+    x = np.cross([0.0, 1.0, 0.0], z) if abs(z[1]) < 0.99 else np.cross([1.0, 0.0, 0.0], z)
+    x = _unit(x)[0]
+    pose = np.eye(4)
+    pose[:3, :3] = np.stack([x, np.cross(z, x), z], 1)
+    return pose
+
+
+def _srgb_to_linear(c: np.ndarray) -> np.ndarray:
+    """pyrender multiplies vertex colours into linear light and gamma-encodes the result."""
+    c = c.astype(np.float32) / 255.0
+    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4).astype(np.float32)
+
+
+def _fog(color: np.ndarray, depth: np.ndarray, framing: _Framing, amount: float) -> np.ndarray:
+    """Fade ``(H, W, 3)`` pixels towards white with their depth ``(H, W)`` (0 = background)."""
+    if amount <= 0:
+        return color
+    t = np.clip((depth - framing.near) / max(framing.far - framing.near, 1e-12), 0.0, 1.0) * amount
+    t[depth <= 0] = 0.0
+    return (color + t[..., None] * (255.0 - color)).round().astype(np.uint8)
+
+
+def _render_frames(geoms: list[_Geometry], which: Sequence[int], framing: _Framing, opts: RenderOptions) -> np.ndarray:
+    """``(len(which), H, W, 3)`` uint8: frame ``k`` shows ``geoms[which[k]]`` from ``framing.poses[k]``."""
+    pyrender = _pyrender()
+    W, H = opts.wh
+    renderer = _renderer(W, H)
+    scene = pyrender.Scene(bg_color=[1.0, 1.0, 1.0, 1.0], ambient_light=[0.18, 0.18, 0.18])
+    camera = pyrender.PerspectiveCamera(yfov=framing.yfov, aspectRatio=framing.aspect,
+                                        znear=framing.znear, zfar=framing.zfar)
+    cam_node = scene.add(camera, pose=framing.poses[0])
+    # lights ride with the camera, so an orbit keeps the same modelling: key upper-left, fill right, rim behind
+    for direction, intensity in (((0.6, -0.7, -0.8), 3.0), ((-0.9, 0.2, -0.5), 0.6), ((0.0, -0.4, 1.0), 1.0)):
+        scene.add(pyrender.DirectionalLight(color=np.ones(3), intensity=intensity),
+                  pose=_look_pose(direction), parent_node=cam_node)
+    material = pyrender.MetallicRoughnessMaterial(baseColorFactor=[1.0, 1.0, 1.0, 1.0], metallicFactor=0.0,
+                                                  roughnessFactor=0.5)
+    meshes: dict[int, Any] = {}
+    out = np.empty((len(which), H, W, 3), np.uint8)
+    last: tuple[int, int] | None = None
+    for k, (g, pose) in enumerate(zip(which, framing.poses)):
+        if last is not None and last[0] == g and np.array_equal(framing.poses[last[1]], pose):
+            out[k] = out[k - 1]  # the same tree from the same place: reuse the pixels
+            continue
+        geom = geoms[g]
+        node = None
+        if len(geom.faces):
+            if g not in meshes:
+                colors = np.concatenate([_srgb_to_linear(geom.colors), np.ones((len(geom.colors), 1), np.float32)], 1)
+                prim = pyrender.Primitive(positions=geom.vertices, normals=geom.normals, color_0=colors,
+                                          indices=geom.faces, material=material, mode=4)  # 4 = GL_TRIANGLES
+                meshes[g] = pyrender.Mesh([prim])
+            node = scene.add(meshes[g])
+        scene.set_pose(cam_node, pose)
+        try:
+            color, depth = renderer.render(scene)
+        except Exception as e:
+            raise _gl_error(e) from e
+        out[k] = _fog(color[..., :3], depth, framing, opts.fog)
+        if node is not None:
+            scene.remove_node(node)
+        last = (g, k)
+    return out
+
+
+def _prepare(batches: Sequence[Trees], n_views: int, opts: RenderOptions) -> tuple[_Framing, float, float]:
+    """Camera for everything in ``batches`` and the tube radii (base, minimum) in world units."""
+    framing = _fit_camera(_all_points(batches), _frame_azimuths(opts, n_views), opts)
+    return framing, opts.radius * framing.scale, opts.min_pixels * framing.pixel
+
+
+# ---------------------------------------------------------------------------------- public API
+def tree_meshes(trees: Trees, options: RenderOptions | None = None, **overrides: Any) -> list[Any]:
+    """One ``trimesh.Trimesh`` per tree (tubes coloured by layer or label), e.g. to export as .ply / .glb.
+
+    Radii are relative to the bounding box of the whole batch, as in the renders.
+    """
+    import trimesh
+
+    opts = _options(options, overrides)
+    pts = _all_points([trees])
+    scale = float(max(np.ptp(pts, axis=0).max(), 1e-9))
+    out = []
+    for g in _tree_geometry(trees, opts, opts.radius * scale, 0.0):
+        rgba = np.concatenate([g.colors, np.full((len(g.colors), 1), 255, np.uint8)], 1)
+        out.append(trimesh.Trimesh(g.vertices, g.faces, vertex_normals=g.normals, vertex_colors=rgba, process=False))
+    return out
+
+
+def render_trees(trees: Trees, options: RenderOptions | None = None, **overrides: Any) -> np.ndarray:
+    """Render every tree of a batch as one frame, with one camera framing them all.
+
+    Args:
+        trees: a batch of ``n`` 3D trees (e.g. the frames of a sequence, or a geodesic path).
+        options / overrides: :class:`RenderOptions` fields (``size``, ``view``, ``color``...).
+
+    Returns:
+        ``(n, H, W, 3)`` uint8 RGB frames on a white background.
+    """
+    opts = _options(options, overrides)
+    n = trees.num_trees
+    framing, r0, rmin = _prepare([trees], n, opts)
+    geoms = _tree_geometry(trees, opts, r0, rmin)
+    return _render_frames(geoms, list(range(n)), framing, opts)
+
+
+def _time_index(times: np.ndarray, n: int) -> list[int]:
+    """For ``n`` evenly spaced video times over ``[times[0], times[-1]]``, the last frame already acquired."""
+    if len(times) == 1 or n == 1:
+        return [len(times) - 1] * n if n == 1 else [0] * n
+    u = np.linspace(times[0], times[-1], n)
+    tol = 1e-9 * (times[-1] - times[0])
+    return np.clip(np.searchsorted(times, u + tol, side="right") - 1, 0, len(times) - 1).tolist()
+
+
+def render_sequence(
+    seq: TreeSequence,
+    n_frames: int | None = None,
+    options: RenderOptions | None = None,
+    caption: bool = False,
+    **overrides: Any,
+) -> np.ndarray:
+    """Render a 4D tree as a video with a fixed camera framing the whole sequence.
+
+    Args:
+        seq: the 4D tree.
+        n_frames: video frames (default: one per acquired frame). Video frame ``k`` shows the
+            latest acquired frame at time ``t_0 + k (t_n - t_0) / (n_frames - 1)``, so irregular
+            acquisition spacing stays visible; ``orbit`` turns the camera smoothly over all frames.
+        caption: write the sequence name and time in the top-left corner.
+
+    Returns:
+        ``(n_frames, H, W, 3)`` uint8.
+    """
+    opts = _options(options, overrides)
+    n = len(seq) if n_frames is None else int(n_frames)
+    if n < 1:
+        raise ValueError(f"n_frames must be >= 1, got {n}")
+    times = seq.times.detach().cpu().double().numpy()
+    which = list(range(n)) if n_frames is None else _time_index(times, n)
+    framing, r0, rmin = _prepare([seq.frames], n, opts)
+    geoms = _tree_geometry(seq.frames, opts, r0, rmin)
+    frames = _render_frames(geoms, which, framing, opts)
+    if caption:
+        name = f"{seq.name}  " if seq.name else ""
+        frames = np.stack([_draw_caption(f, f"{name}t = {times[w]:g}") for f, w in zip(frames, which)])
+    return frames
+
+
+def _as_batch(row: TreeSequence | Trees) -> tuple[Trees, np.ndarray]:
+    """A grid row as a batch of trees and normalised times in ``[0, 1]``."""
+    if isinstance(row, TreeSequence):
+        return row.frames, row.normalized_times().detach().cpu().double().numpy()
+    if isinstance(row, Trees):
+        n = row.num_trees
+        return row, (np.linspace(0, 1, n) if n > 1 else np.zeros(1))
+    raise TypeError(f"grid rows must be TreeSequence or Trees, got {type(row).__name__}")
+
+
+def render_grid(
+    rows: Sequence[TreeSequence | Trees],
+    row_labels: Sequence[str] | None = None,
+    col_labels: Sequence[str] | None = None,
+    title: str | None = None,
+    video: bool = False,
+    n_cols: int | None = None,
+    n_frames: int | None = None,
+    options: RenderOptions | None = None,
+    **overrides: Any,
+) -> np.ndarray:
+    """Several trees / 4D trees side by side (geodesics, modes of variation, samples), one shared camera.
+
+    Image (``video=False``): one row per input, one column per time; ``n_cols`` samples every row
+    at that many evenly spaced normalised times (default: each row's frames in order, short rows
+    padded with white). ``col_labels`` go above the columns, ``row_labels`` left of the rows.
+
+    Video (``video=True``): one cell per input laid out ``n_cols`` cells wide (default: up to 4),
+    each cell animating its row over ``n_frames`` video frames (default: the longest row's length)
+    by normalised time; ``row_labels`` caption the cells.
+
+    Returns:
+        ``(H, W, 3)`` uint8 image, or ``(n_frames, H, W, 3)`` uint8 frames.
+    """
+    if not rows:
+        raise ValueError("render_grid needs at least one row")
+    if row_labels is not None and len(row_labels) != len(rows):
+        raise ValueError(f"{len(row_labels)} row labels for {len(rows)} rows")
+    opts = _options(options, overrides)
+    batches = [_as_batch(r) for r in rows]
+    longest = max(b.num_trees for b, _ in batches)
+    if video:
+        n = n_frames or longest
+        which = [_time_index(t, n) for _, t in batches]
+    elif n_cols is not None:
+        n = n_cols
+        which = [_time_index(t, n) for _, t in batches]
+    else:
+        n = longest
+        which = [list(range(b.num_trees)) for b, _ in batches]
+    if col_labels is not None and not video and len(col_labels) != n:
+        raise ValueError(f"{len(col_labels)} column labels for {n} columns")
+    framing, r0, rmin = _prepare([b for b, _ in batches], n, opts)
+    W, H = opts.wh
+    cells = []  # per row, (n, H, W, 3)
+    for (b, _), w in zip(batches, which):
+        frames = _render_frames(_tree_geometry(b, opts, r0, rmin), w, replace(framing, poses=framing.poses[:len(w)]),
+                                opts)
+        if len(w) < n:  # a short row: blank cells
+            frames = np.concatenate([frames, np.full((n - len(w), H, W, 3), 255, np.uint8)])
+        cells.append(frames)
+    if not video:
+        return _compose(np.stack(cells), row_labels, col_labels, title)
+    per_row = n_cols or min(len(rows), 4)
+    n_grid_rows = -(-len(rows) // per_row)
+    if row_labels is not None:
+        cells = [np.stack([_draw_caption(f, str(lab)) for f in c]) for c, lab in zip(cells, row_labels)]
+    blank = np.full((n, H, W, 3), 255, np.uint8)
+    cells += [blank] * (n_grid_rows * per_row - len(cells))
+    tiles = np.stack(cells).reshape(n_grid_rows, per_row, n, H, W, 3)
+    frames = tiles.transpose(2, 0, 3, 1, 4, 5).reshape(n, n_grid_rows * H, per_row * W, 3)
+    if title:
+        frames = np.stack([_compose(f[None, None], None, None, title) for f in frames])
+    return _even(frames)
+
+
+# ------------------------------------------------------------------------------------ 2D layout
+def _font(px: int) -> Any:
+    from PIL import ImageFont
+
+    try:
+        return ImageFont.load_default(size=px)  # Pillow >= 10.1 ships a scalable font
+    except (TypeError, OSError):
+        return ImageFont.load_default()
+
+
+def _draw_caption(frame: np.ndarray, text: str) -> np.ndarray:
+    """The frame with ``text`` in its top-left corner."""
+    from PIL import Image, ImageDraw
+
+    img = Image.fromarray(frame)
+    px = max(10, min(28, frame.shape[0] // 18))
+    ImageDraw.Draw(img).text((px // 2, px // 3), text, fill=(40, 40, 40), font=_font(px))
+    return np.asarray(img)
+
+
+def _compose(
+    cells: np.ndarray, row_labels: Sequence[str] | None, col_labels: Sequence[str] | None, title: str | None
+) -> np.ndarray:
+    """Tile ``cells (R, C, H, W, 3)`` into one image with a title, column labels and row labels."""
+    from PIL import Image, ImageDraw
+
+    R, C, H, W, _ = cells.shape
+    px = max(11, min(32, H // 14))
+    font, title_font = _font(px), _font(int(px * 1.3))
+    probe = ImageDraw.Draw(Image.new("RGB", (1, 1)))
+
+    def text_wh(text: str, f: Any) -> tuple[int, int]:
+        x0, y0, x1, y1 = probe.textbbox((0, 0), text, font=f)
+        return x1 - x0, y1 - y0
+
+    pad = px // 2
+    left = max((text_wh(str(t), font)[0] for t in row_labels), default=0) + 2 * pad if row_labels else 0
+    top_title = text_wh(title, title_font)[1] + 2 * pad if title else 0
+    top_cols = px + 2 * pad if col_labels else 0
+    top = top_title + top_cols
+    img = Image.new("RGB", (left + C * W, top + R * H), (255, 255, 255))
+    img.paste(Image.fromarray(cells.transpose(0, 2, 1, 3, 4).reshape(R * H, C * W, 3)), (left, top))
+    draw = ImageDraw.Draw(img)
+    ink = (30, 30, 30)
+    if title:
+        tw, _ = text_wh(title, title_font)
+        draw.text((left + (C * W - tw) // 2, pad), title, fill=ink, font=title_font)
+    if col_labels:
+        for c, lab in enumerate(col_labels):
+            tw, _ = text_wh(str(lab), font)
+            draw.text((left + c * W + (W - tw) // 2, top_title + pad), str(lab), fill=ink, font=font)
+    if row_labels:
+        for r, lab in enumerate(row_labels):
+            _, th = text_wh(str(lab), font)
+            draw.text((pad, top + r * H + (H - th) // 2), str(lab), fill=ink, font=font)
+    return np.asarray(img)
+
+
+def _even(frames: np.ndarray) -> np.ndarray:
+    """Pad ``(..., H, W, 3)`` with white to even ``H`` and ``W`` (H.264 with yuv420p needs it)."""
+    H, W = frames.shape[-3:-1]
+    ph, pw = H % 2, W % 2
+    if not (ph or pw):
+        return frames
+    widths = [(0, 0)] * (frames.ndim - 3) + [(0, ph), (0, pw), (0, 0)]
+    return np.pad(frames, widths, constant_values=255)
+
+
+# ---------------------------------------------------------------------------------------- files
+def _check_frames(frames: np.ndarray, what: str) -> np.ndarray:
+    arr = np.asarray(frames)
+    if arr.dtype != np.uint8 or arr.shape[-1] not in (3, 4):
+        raise ValueError(f"{what} must be uint8 RGB(A) with shape (..., H, W, 3), got {arr.dtype} {arr.shape}")
+    return arr
+
+
+def save_image(path: str | Path, image: np.ndarray, overwrite: bool = False) -> Path:
+    """Write one ``(H, W, 3)`` uint8 image (format from the suffix: .png, .jpg); never replaces a file unless asked."""
+    import imageio.v3 as iio
+
+    path = Path(path)
+    img = _check_frames(image, "image")
+    if img.ndim == 4 and len(img) == 1:
+        img = img[0]
+    if img.ndim != 3:
+        raise ValueError(f"save_image takes one (H, W, 3) image, got {img.shape}; use save_video or save_frames")
+    suffix = path.suffix.lower()
+    if suffix not in IMAGE_SUFFIXES:
+        raise ValueError(f"{path}: image files must end in {', '.join(IMAGE_SUFFIXES)}")
+    if path.exists() and not overwrite:  # fail before encoding
+        raise FileExistsError(f"{path} exists; pass overwrite=True (--overwrite) to replace it")
+    data = iio.imwrite("<bytes>", img, extension=suffix)
+    return write_bytes_safely(path, data, overwrite)
+
+
+def save_frames(folder: str | Path, frames: np.ndarray, overwrite: bool = False, prefix: str = "frame") -> list[Path]:
+    """Write ``(n, H, W, 3)`` frames as ``folder/<prefix>_0000.png`` ...; refuses to replace any existing file."""
+    arr = _check_frames(frames, "frames")
+    folder = Path(folder)
+    paths = [folder / f"{prefix}_{k:04d}.png" for k in range(len(arr))]
+    clash = [p for p in paths if p.exists()]
+    if clash and not overwrite:
+        raise FileExistsError(f"{clash[0]} exists; pass overwrite=True (--overwrite) to replace it")
+    return [save_image(p, f, overwrite) for p, f in zip(paths, arr)]
+
+
+def _publish(tmp: Path, path: Path, overwrite: bool) -> None:
+    """Move a finished temporary file to ``path``; without ``overwrite`` never replaces an existing file."""
+    if overwrite:
+        os.replace(tmp, path)
+        return
+    try:
+        os.link(tmp, path)  # atomic "create only if absent"
+    except FileExistsError:
+        raise FileExistsError(f"{path} exists; pass overwrite=True (--overwrite) to replace it") from None
+    except OSError:  # a file system without hard links
+        if path.exists():
+            raise FileExistsError(f"{path} exists; pass overwrite=True (--overwrite) to replace it") from None
+        os.replace(tmp, path)
+        return
+    tmp.unlink()
+
+
+def save_video(path: str | Path, frames: np.ndarray, fps: float = 4.0, overwrite: bool = False) -> Path:
+    """Write ``(n, H, W, 3)`` uint8 frames as a GIF (looping) or an MP4 (H.264, yuv420p).
+
+    The format comes from the suffix. MP4 uses imageio-ffmpeg's bundled ffmpeg; odd sizes are
+    padded with white to even ones. Never replaces an existing file unless ``overwrite``.
+    """
+    path = Path(path)
+    arr = _check_frames(frames, "frames")
+    if arr.ndim == 3:
+        arr = arr[None]
+    if arr.ndim != 4 or len(arr) == 0:
+        raise ValueError(f"save_video takes (n >= 1, H, W, 3) frames, got {arr.shape}")
+    arr = np.ascontiguousarray(arr[..., :3])
+    if fps <= 0:
+        raise ValueError(f"fps must be positive, got {fps}")
+    suffix = path.suffix.lower()
+    if suffix not in VIDEO_SUFFIXES:
+        raise ValueError(f"{path}: video files must end in {', '.join(VIDEO_SUFFIXES)} (use save_frames for PNGs)")
+    if path.exists() and not overwrite:
+        raise FileExistsError(f"{path} exists; pass overwrite=True (--overwrite) to replace it")
+    if suffix == ".gif":
+        import imageio.v3 as iio
+
+        data = iio.imwrite("<bytes>", arr, extension=".gif", duration=1000.0 / fps, loop=0)
+        return write_bytes_safely(path, data, overwrite)
+    import imageio_ffmpeg
+
+    arr = _even(arr)
+    n, H, W, _ = arr.shape
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp_name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".mp4")
+    os.close(fd)
+    tmp = Path(tmp_name)
+    try:
+        writer = imageio_ffmpeg.write_frames(
+            str(tmp), (W, H), fps=fps, codec="libx264", pix_fmt_in="rgb24", pix_fmt_out="yuv420p",
+            macro_block_size=1, quality=None, ffmpeg_log_level="error",
+            output_params=["-crf", "18", "-preset", "veryfast", "-movflags", "+faststart"],
+        )
+        writer.send(None)
+        for f in arr:
+            writer.send(f.tobytes())
+        writer.close()
+        _publish(tmp, path, overwrite)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return path
+
+
+# ------------------------------------------------------------------------------------------ CLI
+def _parse_size(text: str) -> tuple[int, int]:
+    try:
+        parts = [int(p) for p in text.lower().replace("*", "x").split("x")]
+    except ValueError:
+        parts = []
+    if len(parts) == 1:
+        parts = parts * 2
+    if len(parts) != 2 or min(parts) < 8:
+        raise argparse.ArgumentTypeError(f"size must be WIDTH or WIDTHxHEIGHT (>= 8 pixels), got {text!r}")
+    return parts[0], parts[1]
+
+
+def add_render_arguments(parser: argparse.ArgumentParser) -> None:
+    """Arguments of ``torch4dtree render PATH --out FILE``."""
+    parser.add_argument("path", type=Path,
+                        help="a tree file (.swc, .mat), a sequence folder (frames over time) or a dataset folder "
+                             "(one sequence folder per 4D tree)")
+    parser.add_argument("--out", "-o", type=Path, required=True,
+                        help="output .png (a tree; a row of frames for a sequence; rows x time for a dataset), "
+                             ".gif or .mp4 (a video over time; a turn around the plant for one tree)")
+    parser.add_argument("--size", type=_parse_size, default=None,
+                        help="WIDTH or WIDTHxHEIGHT in pixels of a frame, or of a grid cell "
+                             "(default 512 for single frames and videos, 256 per grid cell)")
+    parser.add_argument("--view", choices=VIEWS, default="front", help="camera view (default: front)")
+    parser.add_argument("--elevation", type=float, default=RenderOptions.elevation,
+                        help="camera elevation in degrees (default: %(default)s)")
+    parser.add_argument("--fps", type=float, default=4.0, help="video frames per second (default: %(default)s)")
+    parser.add_argument("--frames", type=int, default=None,
+                        help="video frames (default: one per time point; 36 for a turn around one tree)")
+    parser.add_argument("--color", choices=COLOR_MODES, default="layer",
+                        help="colour branches by layer (red, blue, yellow, purple...) or by label")
+    parser.add_argument("--title", default=None, help="title written above grid images and videos")
+    parser.add_argument("--overwrite", action="store_true", help="replace the output file if it exists")
+    parser.add_argument("--repair", action="store_true", help="repair SWC files with cycles or several roots")
+    parser.add_argument("--T", type=int, default=DEFAULT_T, help="points per branch (default: %(default)s)")
+
+
+def run_render(args: argparse.Namespace) -> int:
+    """Run ``torch4dtree render``; returns the process exit code (errors go to stderr)."""
+    from .io import DatasetError, LoadOptions, read_dataset, read_sequence, read_tree
+    from .io.dataset import is_sequence_folder
+
+    out: Path = args.out
+    suffix = out.suffix.lower()
+    video = suffix in VIDEO_SUFFIXES
+    try:
+        if not video and suffix not in IMAGE_SUFFIXES:
+            raise ValueError(f"--out must end in .png, .jpg, .gif or .mp4, got {out.name!r}")
+        if out.exists() and not args.overwrite:
+            raise FileExistsError(f"{out} exists; pass --overwrite to replace it")
+        load = LoadOptions(T=args.T, repair=args.repair)
+        path: Path = args.path
+        common = dict(view=args.view, color=args.color, elevation=args.elevation)
+        single = args.size or (512, 512)
+        cell = args.size or (256, 256)
+        if path.is_file():
+            tree = read_tree(path, load)
+            if tree is None:
+                raise DatasetError(f"{path}: empty tree file")
+            if video:  # one tree: turn around it
+                n = args.frames or 36
+                opts = RenderOptions(size=single, **{**common, "view": "orbit"})
+                framing, r0, rmin = _prepare([tree], n, opts)
+                frames = _render_frames(_tree_geometry(tree, opts, r0, rmin), [0] * n, framing, opts)
+            else:
+                frames = render_trees(tree, size=single, **common)
+        elif path.is_dir() and is_sequence_folder(path):
+            seq = read_sequence(path, load).sequence
+            if video:
+                frames = render_sequence(seq, args.frames, size=single, caption=True, **common)
+                if args.title:
+                    frames = np.stack([_compose(f[None, None], None, None, args.title) for f in frames])
+            else:
+                cols = [f"t = {t:g}" for t in seq.times.tolist()]
+                frames = render_grid([seq], col_labels=cols, title=args.title or seq.name, size=cell, **common)
+        elif path.is_dir():
+            loaded = read_dataset(path, load)
+            seqs = [ls.sequence for ls in loaded]
+            names = [s.name for s in seqs]
+            frames = render_grid(seqs, row_labels=names, title=args.title, video=video, n_frames=args.frames,
+                                 size=cell, **common)
+        else:
+            raise DatasetError(f"{path}: no such file or folder")
+        if video:
+            save_video(out, frames, fps=args.fps, overwrite=args.overwrite)
+        else:
+            save_image(out, frames[0] if frames.ndim == 4 else frames, overwrite=args.overwrite)
+    except (FileExistsError, ValueError, TreeError, RuntimeError, OSError) as e:
+        print(f"torch4dtree render: error: {e}", file=sys.stderr)
+        return 1
+    print(out)
+    return 0
+
