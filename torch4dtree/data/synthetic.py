@@ -101,7 +101,7 @@ def evaluate_warp(grid: Tensor | np.ndarray, values: Tensor | np.ndarray, x: Ten
     g = np.asarray(torch.as_tensor(grid).double().cpu())
     v = np.asarray(torch.as_tensor(values).double().cpu())
     xs = np.asarray(torch.as_tensor(x).double().cpu())
-    return torch.from_numpy(np.interp(xs, g, v).reshape(xs.shape))
+    return torch.from_numpy(np.asarray(np.interp(xs, g, v), dtype=np.float64).reshape(xs.shape))
 
 
 # ------------------------------------------------------------------------------ kind models
