@@ -1,0 +1,289 @@
+"""SRVF trees in a dense common slot layout (`AlignedTrees`).
+
+Registration writes trees into one **layout**: a template tree of ``S`` slots (``slot_parent``,
+``slot_depth``; slot 0 is the main branch, parents come before children). Every tree of the batch
+has one SRVF per slot, a null branch (``q = 0``) where it has nothing. In that layout the metric of
+SPEC §3,
+
+    d^2(Q, Q') = lm ||q0 - q0'||^2 + sum_i [ lp (s_i - s_i')^2 + ls d^2(Q_i, Q_i') ]   (recursively),
+
+is the squared Euclidean norm of :meth:`AlignedTrees.features` differences: the SRVF of a slot
+at depth ``k`` has weight ``lm ls^k`` and its bifurcation parameter ``lp ls^(k-1)`` (``k >= 1``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+from .curves import curve_length, interpolate_curve, inverse_srvf, resample_polylines, srvf, srvf_sq_norm
+from .structures import Trees
+
+__all__ = ["AlignedTrees", "Lambdas", "slot_weights", "subtree_sq_norms"]
+
+Lambdas = tuple[float, float, float]
+
+
+def slot_weights(slot_depth: Tensor, lambdas: Lambdas) -> tuple[Tensor, Tensor]:
+    """Metric weights per slot: ``(w_q (S,), w_s (S,))`` with ``w_s = 0`` at the main branch."""
+    lm, lp, ls = lambdas
+    depth = slot_depth.to(torch.float64)
+    w_q = lm * torch.pow(torch.as_tensor(ls, dtype=torch.float64), depth)
+    w_s = torch.where(depth >= 1, lp * torch.pow(torch.as_tensor(ls, dtype=torch.float64), depth - 1),
+                      torch.zeros_like(depth))
+    return w_q, w_s
+
+
+def subtree_sq_norms(lengths: Sequence[float], parent: Sequence[int], lambdas: Lambdas) -> list[float]:
+    """Recursive squared norm ``||Q||^2 = lm ||q||^2 + ls sum_children ||Q_c||^2`` of every subtree.
+
+    ``lengths[i] = ||q_i||^2`` (branch length), ``parent[i]`` within the same list (parents first).
+    This is the squared distance of subtree ``i`` to the null tree.
+    """
+    lm, _, ls = lambdas
+    out = [lm * float(x) for x in lengths]
+    for i in range(len(parent) - 1, -1, -1):  # children after parents: accumulate bottom-up
+        p = parent[i]
+        if p >= 0:
+            out[p] += ls * out[i]
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class AlignedTrees:
+    """``n`` trees written in one common layout of ``S`` slots (``M = T - 1`` segments, dimension ``d``).
+
+    Attributes:
+        q: ``(n, S, M, d)`` SRVF per tree and slot; zeros for a null branch.
+        s: ``(n, S)`` bifurcation parameter of each slot on its parent slot (0 for slot 0).
+        present: ``(n, S)`` bool, the tree has a real branch in that slot.
+        root: ``(n, d)`` position of the main branch's first point (the pre-shape drops it).
+        slot_parent: ``(S,)`` long, parent slot (``-1`` for slot 0); parents come first.
+        slot_depth: ``(S,)`` long, layer of each slot (0 = main branch).
+        source: ``(n, S)`` long, index of the original branch (within its tree) or ``-1``.
+        lambdas: ``(lm, lp, ls)`` metric weights.
+    """
+
+    q: Tensor
+    s: Tensor
+    present: Tensor
+    root: Tensor
+    slot_parent: Tensor
+    slot_depth: Tensor
+    source: Tensor
+    lambdas: Lambdas = (1.0, 1.0, 1.0)
+
+    def __post_init__(self) -> None:
+        n, S = self.q.shape[:2]
+        if self.q.dim() != 4:
+            raise ValueError(f"q must be (n, S, M, d), got {tuple(self.q.shape)}")
+        for name, shape in (("s", (n, S)), ("present", (n, S)), ("source", (n, S)),
+                            ("root", (n, self.q.shape[3])), ("slot_parent", (S,)), ("slot_depth", (S,))):
+            if tuple(getattr(self, name).shape) != shape:
+                raise ValueError(f"{name} must have shape {shape}, got {tuple(getattr(self, name).shape)}")
+        if S < 1 or int(self.slot_parent[0]) != -1:
+            raise ValueError("slot 0 must be the main branch (parent -1)")
+        idx = torch.arange(S, device=self.slot_parent.device)
+        if bool((self.slot_parent[1:] >= idx[1:]).any()) or bool((self.slot_parent[1:] < 0).any()):
+            raise ValueError("every slot but 0 needs a parent slot that comes before it")
+
+    # ------------------------------------------------------------------------ basics
+    @property
+    def num_trees(self) -> int:
+        return self.q.shape[0]
+
+    def __len__(self) -> int:
+        return self.num_trees
+
+    @property
+    def num_slots(self) -> int:
+        return self.q.shape[1]
+
+    @property
+    def T(self) -> int:
+        """Points per branch (``M + 1``)."""
+        return self.q.shape[2] + 1
+
+    def __getitem__(self, index: int | slice | Sequence[int] | Tensor) -> AlignedTrees:
+        """Select trees (the layout is shared)."""
+        if isinstance(index, int):
+            index = [index]
+        return AlignedTrees(self.q[index], self.s[index], self.present[index], self.root[index],
+                            self.slot_parent, self.slot_depth, self.source[index], self.lambdas)
+
+    @staticmethod
+    def cat(batches: Sequence[AlignedTrees]) -> AlignedTrees:
+        """Concatenate batches that share one layout."""
+        a = batches[0]
+        for b in batches[1:]:
+            if not torch.equal(a.slot_parent, b.slot_parent) or a.lambdas != b.lambdas:
+                raise ValueError("AlignedTrees.cat needs batches with the same layout and lambdas")
+        return AlignedTrees(torch.cat([b.q for b in batches]), torch.cat([b.s for b in batches]),
+                            torch.cat([b.present for b in batches]), torch.cat([b.root for b in batches]),
+                            a.slot_parent, a.slot_depth, torch.cat([b.source for b in batches]), a.lambdas)
+
+    def weights(self) -> tuple[Tensor, Tensor]:
+        """``(w_q (S,), w_s (S,))`` metric weights of each slot's SRVF and ``s``."""
+        w_q, w_s = slot_weights(self.slot_depth, self.lambdas)
+        return w_q.to(self.q.dtype), w_s.to(self.q.dtype)
+
+    # ------------------------------------------------------------------------ metric
+    def features(self) -> Tensor:
+        """Flattened weighted SRVFT ``(n, S*M*d + S - 1)``: Euclidean norms of differences are the metric."""
+        n, S, M, d = self.q.shape
+        w_q, w_s = self.weights()
+        fq = (self.q * (w_q / M).sqrt()[None, :, None, None]).reshape(n, S * M * d)
+        fs = self.s[:, 1:] * w_s[1:].sqrt()
+        return torch.cat([fq, fs], dim=1)
+
+    @staticmethod
+    def from_features(features: Tensor, like: AlignedTrees, root: Tensor | None = None) -> AlignedTrees:
+        """Inverse of :meth:`features` in the layout of ``like``. ``(n, F) -> AlignedTrees`` (n trees).
+
+        ``present`` marks slots with a nonzero SRVF; ``source`` is -1; ``root`` defaults to zeros.
+        """
+        n = features.shape[0]
+        S, M, d = like.q.shape[1:]
+        w_q, w_s = like.weights()
+        w_q, w_s = w_q.to(features), w_s.to(features)
+        q = features[:, : S * M * d].reshape(n, S, M, d) / (w_q / M).sqrt()[None, :, None, None]
+        s = torch.zeros(n, S, dtype=features.dtype, device=features.device)
+        if S > 1:
+            s[:, 1:] = features[:, S * M * d:] / w_s[1:].sqrt()
+        present = (q != 0).flatten(2).any(-1)
+        root = features.new_zeros(n, d) if root is None else root
+        source = torch.full((n, S), -1, dtype=torch.long, device=features.device)
+        return AlignedTrees(q, s, present, root, like.slot_parent, like.slot_depth, source, like.lambdas)
+
+    def sq_norm(self) -> Tensor:
+        """``(n,)`` squared recursive norm of each tree (its squared distance to the null tree, s terms aside).
+
+        Equals ``||features||^2`` minus the ``s`` terms: what matching the whole tree to nothing costs.
+        """
+        w_q, _ = self.weights()
+        return (srvf_sq_norm(self.q) * w_q).sum(-1)
+
+    def sq_distances(self, other: AlignedTrees | None = None) -> Tensor:
+        """Squared metric distances ``(n, n')`` between the trees of two batches in the same layout."""
+        f1 = self.features()
+        f2 = f1 if other is None else other.features()
+        return torch.cdist(f1, f2).square()
+
+    def lerp(self, other: AlignedTrees, t: Tensor) -> AlignedTrees:
+        """Straight line ``(1 - t) self + t other`` (1-tree batches) at ``t (k,)`` -> ``k`` trees (a geodesic)."""
+        if self.num_trees != 1 or other.num_trees != 1:
+            raise ValueError("lerp needs two single-tree batches")
+        t = t.to(self.q.dtype).reshape(-1)
+        tq = t[:, None, None, None]
+        q = (1 - tq) * self.q + tq * other.q
+        s = (1 - t[:, None]) * self.s + t[:, None] * other.s
+        root = (1 - t[:, None]) * self.root + t[:, None] * other.root
+        present = (self.present | other.present).expand(len(t), -1).clone()
+        present[t == 0] = self.present[0]
+        present[t == 1] = other.present[0]
+        source = torch.full_like(present, -1, dtype=torch.long)
+        return AlignedTrees(q, s, present, root, self.slot_parent, self.slot_depth, source, self.lambdas)
+
+    # ------------------------------------------------------------------------ construction
+    @staticmethod
+    def from_trees(trees: Trees, lambdas: Lambdas = (1.0, 1.0, 1.0), dtype: torch.dtype = torch.float64
+                   ) -> AlignedTrees:
+        """One tree in its own layout (slot ``i`` = branch ``i``). Needs a single-tree batch.
+
+        Use registration (:func:`torch4dtree.registration.register_trees`) to put several trees in one layout.
+        """
+        if trees.num_trees != 1:
+            raise ValueError("AlignedTrees.from_trees needs a single tree; register trees to share a layout")
+        pts = trees.points.to(dtype)
+        N = pts.shape[0]
+        parent = trees.parent.to(torch.long)
+        return AlignedTrees(
+            srvf(pts)[None], trees.s.to(dtype)[None], torch.ones(1, N, dtype=torch.bool),
+            pts[0, 0][None], parent, trees.depth, torch.arange(N)[None], tuple(float(x) for x in lambdas),
+        )
+
+    # ------------------------------------------------------------------------ decoding
+    def to_trees(self, eps: float = 1e-6) -> Trees:
+        """Decode to ragged trees (``Trees`` in float ``q.dtype``), one per tree of the batch.
+
+        Each slot is integrated with the inverse SRVF, starting at the root (slot 0) or on its parent's
+        curve at its ``s``; slots whose branch is shorter than ``eps`` (null or nearly so) are dropped
+        with their descendants. The curves are then resampled uniformly in arc length, so ``s`` is
+        converted to the arc-length fraction of the attachment point. The branch ``label`` is the slot
+        index, so branches keep their identity across a geodesic. The main branch is always kept.
+        """
+        n, S, M, d = self.q.shape
+        parent = self.slot_parent.tolist()
+        lengths = srvf_sq_norm(self.q)  # (n, S) = branch lengths
+        pts_all: list[Tensor] = []
+        par_all: list[int] = []
+        s_all: list[Tensor] = []
+        lab_all: list[int] = []
+        counts: list[int] = []
+        for t in range(n):
+            keep = [True] * S
+            for k in range(1, S):
+                keep[k] = keep[parent[k]] and bool(lengths[t, k] > eps)
+            curves: dict[int, Tensor] = {}
+            arc_s: dict[int, Tensor] = {}
+            for k in range(S):  # parents first, so a child's parent curve exists
+                if not keep[k]:
+                    continue
+                if k == 0:
+                    start = self.root[t]
+                    arc_s[k] = self.s.new_zeros(())
+                else:
+                    pc = curves[parent[k]]
+                    sk = self.s[t, k].clamp(0, 1)
+                    start = interpolate_curve(pc[None], sk.reshape(1, 1))[0, 0]
+                    arc_s[k] = _arc_fraction(pc, sk)
+                curves[k] = inverse_srvf(self.q[t, k], start)
+            children: dict[int, list[int]] = {k: [] for k in curves}
+            for k in curves:
+                if k > 0:
+                    children[parent[k]].append(k)
+            order: list[int] = []
+            stack = [0]
+            while stack:  # depth-first, children by increasing s (the Trees convention)
+                k = stack.pop()
+                order.append(k)
+                stack.extend(sorted(children[k], key=lambda c: -float(arc_s[c])))
+            new = {k: i for i, k in enumerate(order)}
+            pts_all.append(torch.stack([curves[k] for k in order]))
+            par_all += [-1 if k == 0 else new[parent[k]] for k in order]
+            s_all += [arc_s[k] for k in order]
+            lab_all += order
+            counts.append(len(order))
+        raw = torch.cat(pts_all)
+        T = M + 1
+        resampled = _resample_or_keep(raw, T)
+        return Trees(resampled, torch.tensor(par_all, dtype=torch.long), torch.stack(s_all).to(raw.dtype),
+                     torch.tensor(counts, dtype=torch.long), torch.tensor(lab_all, dtype=torch.long))
+
+
+def _arc_fraction(curve: Tensor, s: Tensor) -> Tensor:
+    """Arc-length fraction of the point at parameter ``s`` of a polyline ``(T, d)``."""
+    T = curve.shape[0]
+    seg = (curve[1:] - curve[:-1]).norm(dim=-1)
+    total = seg.sum()
+    if not bool(total > 0):
+        return s
+    cum = torch.cat([seg.new_zeros(1), seg.cumsum(0)])
+    x = s * (T - 1)
+    lo = int(torch.clamp(x.floor(), 0, T - 2))
+    frac = x - lo
+    return ((cum[lo] + frac * seg[lo]) / total).clamp(0, 1)
+
+
+def _resample_or_keep(points: Tensor, T: int) -> Tensor:
+    """Arc-length resampling of ``(N, T, d)`` polylines; zero-length ones are kept as they are."""
+    length = curve_length(points)
+    out = points.clone()
+    ok = length > 0
+    if bool(ok.any()):
+        counts = torch.full((int(ok.sum()),), points.shape[1])
+        out[ok] = resample_polylines(points[ok], counts, T)
+    return out

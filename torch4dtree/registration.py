@@ -1,0 +1,519 @@
+"""Elastic registration of 3D trees (SPEC §3): warps, partial branch correspondences, rotation.
+
+For a moving tree ``Q2`` and a reference ``Q1`` we minimise, over a global rotation ``O``, a warp of
+every branch and a partial matching of side subtrees at every node,
+
+    D(a, b) = lm ||q_b - O (q_a o gamma_ab)||^2 + min_matching [ sum_matched lp (s'_c - s_e)^2 + ls D(c, e)
+                                                               + sum_unmatched ls ||Q||^2 ],
+
+where ``s'_c = gamma_ab^{-1}(s_c)`` is where child ``c`` sits on the warped parent, ``||Q||^2`` the
+recursive norm (the squared distance to the null tree, a null partner sitting at the same ``s``).
+As in the paper the warp of a branch is chosen on the branch alone (DP), then the children's
+parameters move with it and their matching is one linear assignment on the augmented
+``(k1 + k2) x (k1 + k2)`` cost matrix.
+
+Batching: the candidate pairs are generated top-down, depth by depth (children pairs of every
+non-pruned parent pair), and each depth is ONE batched :func:`dp_warp` call over every pair of
+every registration in flight (all the trees of :func:`register_to_reference`, all rotation starts).
+The assignments are then solved bottom-up from those costs. Pruning is exact: a pair whose lower
+bound ``lp ds^2 + ls lm E_branch`` already costs as much as leaving both subtrees unmatched can
+never be used by an optimal assignment, so its subtrees are not explored.
+
+The rotation alternates with the recursion (weighted Kabsch / rotation about ``up`` on all matched
+branch pairs) until the energy stops decreasing; several starting rotations are tried. The result
+is never worse than the index-order solution (children matched by order of ``s``, identity warps
+and rotation), which is a valid candidate and is kept when it is better.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+import torch
+from scipy.optimize import linear_sum_assignment
+from torch import Tensor
+
+from .aligned import AlignedTrees, Lambdas, slot_weights, subtree_sq_norms
+from .curves import srvf, srvf_sq_norm, warp_srvf
+from .rotation import axis_rotation, check_rotation_mode, kabsch, vertical_rotation
+from .structures import Trees
+from .warping import DPWarp, dp_warp, register_curves
+
+__all__ = [
+    "TreeRegistration",
+    "index_order_matches",
+    "pairwise_distances",
+    "register_to_reference",
+    "register_trees",
+]
+
+
+class TreeRegistration(NamedTuple):
+    """Result of :func:`register_trees` (moving tree with ``Nm`` branches, ``T`` points per branch).
+
+    * ``distance``: scalar, the registered distance ``||f(moving*) - f(reference)||`` (metric of SPEC §3);
+      differentiable in the input points given the discrete choices.
+    * ``distance_before``: scalar, the index-order distance (children matched by order of ``s``, extra
+      ones to null, identity warps and rotation).
+    * ``rotation``: ``(d, d)`` acting on row vectors of the moving tree as ``x @ O.T`` (about its root).
+    * ``gamma``: ``(Nm, T)`` warp of each moving branch (identity for branches matched to null).
+    * ``matches``: ``[(moving branch, reference branch), ...]``, indices within each tree's packed
+      branches (depth-first order), the main branches first.
+    * ``unmatched_moving`` / ``unmatched_reference``: branches matched to a null branch.
+    * ``aligned``: :class:`AlignedTrees` with 2 trees in one layout: ``[registered moving, reference]``
+      (reference's slots first, in its packed order, then slots for the moving tree's unmatched branches).
+    * ``used_index_order``: the index-order solution was better than the optimised one and was kept.
+    """
+
+    distance: Tensor
+    distance_before: Tensor
+    rotation: Tensor
+    gamma: Tensor
+    matches: list[tuple[int, int]]
+    unmatched_moving: list[int]
+    unmatched_reference: list[int]
+    aligned: AlignedTrees
+    used_index_order: bool
+
+
+# ----------------------------------------------------------------------------- prepared trees
+
+
+@dataclass
+class _Tree:
+    """One tree in the form the solver uses (float64; branch lists per node)."""
+
+    points: Tensor  # (N, T, d), as given (keeps autograd)
+    q: Tensor  # (N, M, d) float64, detached
+    s: np.ndarray  # (N,)
+    parent: list[int]
+    children: list[list[int]]  # sorted by s
+    depth: list[int]
+    sqrt_len: np.ndarray  # (N,) sqrt(||q||^2)
+    norm: np.ndarray  # (N,) recursive subtree squared norms
+
+
+def _prepare(tree: Trees, lambdas: Lambdas) -> _Tree:
+    if tree.num_trees != 1:
+        raise ValueError(f"expected a single tree, got a batch of {tree.num_trees}")
+    q = srvf(tree.points.detach().to(torch.float64))
+    parent = tree.parent.tolist()
+    s = tree.s.detach().to(torch.float64).numpy().copy()
+    children: list[list[int]] = [[] for _ in parent]
+    for i, p in enumerate(parent):
+        if p >= 0:
+            children[p].append(i)
+    for ch in children:
+        ch.sort(key=lambda c: s[c])
+    lengths = srvf_sq_norm(q).numpy()
+    return _Tree(tree.points, q, s, parent, children, tree.depth.tolist(), np.sqrt(lengths),
+                 np.asarray(subtree_sq_norms(lengths.tolist(), parent, lambdas)))
+
+
+@dataclass
+class _Config:
+    """A registration candidate: matches (moving -> reference), warps of the moving branches, rotation."""
+
+    energy: float
+    match: dict[int, int]
+    gamma: np.ndarray  # (Nm, T)
+    O: Tensor  # (d, d) float64
+
+
+# ----------------------------------------------------------------------------- the recursive solver
+
+
+# below this many pairs the serial DP kernel beats the thread-parallel one (measured on 2 busy cores)
+SERIAL_DP_BELOW = 256
+
+
+def _batched_dp(q1: Tensor, q2: Tensor, dp_opts: dict) -> DPWarp:
+    """One batched :func:`dp_warp` call, single-threaded for small batches (thread start-up dominates)."""
+    if len(q1) >= SERIAL_DP_BELOW:
+        return dp_warp(q1, q2, **dp_opts)
+    try:
+        import numba
+    except ImportError:  # pragma: no cover - torch backend
+        return dp_warp(q1, q2, **dp_opts)
+    before = numba.get_num_threads()
+    numba.set_num_threads(1)  # thread-local setting: does not affect other threads
+    try:
+        return dp_warp(q1, q2, **dp_opts)
+    finally:
+        numba.set_num_threads(before)
+
+
+def _rotate(x: Tensor, O: Tensor) -> Tensor:
+    """``x @ O.T`` for ``x (..., d)``, elementwise: tiny batched matmuls wake torch's thread pool, which costs
+    milliseconds per call on a busy machine."""
+    return (x.unsqueeze(-2) * O).sum(-1)
+
+
+def _solve(movs: Sequence[_Tree], refs: Sequence[_Tree], jobs: Sequence[tuple[int, int, Tensor]],
+           lambdas: Lambdas, dp_opts: dict, prune: bool) -> list[_Config]:
+    """Warps + assignments for fixed rotations. ``jobs[k] = (moving index, reference index, O (d, d))``."""
+    lm, lp, ls = lambdas
+    T = movs[0].q.shape[1] + 1
+    grid = np.linspace(0.0, 1.0, T)
+    qrot = [_rotate(movs[m].q, O) for m, _, O in jobs]
+    # top-down: candidate pairs per depth, one batched DP per depth
+    level: list[tuple[int, int, int, float]] = [(k, 0, 0, 0.0) for k in range(len(jobs))]
+    levels: list[list[tuple[int, int, int, float]]] = []
+    info: dict[tuple[int, int, int], tuple[float, np.ndarray, np.ndarray]] = {}  # -> (E, gamma, children's s')
+    depth = 0
+    while level:
+        levels.append(level)
+        q1 = torch.stack([refs[jobs[k][1]].q[b] for k, _, b, _ in level])
+        q2 = torch.stack([qrot[k][a] for k, a, _, _ in level])
+        res = _batched_dp(q1, q2, dp_opts)
+        gam, E = res.gamma.numpy(), res.energy.numpy()
+        nxt: list[tuple[int, int, int, float]] = []
+        for p, (k, a, b, sa) in enumerate(level):
+            mov, ref = movs[jobs[k][0]], refs[jobs[k][1]]
+            if depth > 0 and prune and lp * (sa - ref.s[b]) ** 2 + ls * lm * E[p] >= ls * (mov.norm[a] + ref.norm[b]):
+                continue  # never better than leaving both unmatched: do not explore
+            ca, cb = mov.children[a], ref.children[b]
+            sc = np.interp(mov.s[ca], gam[p], grid) if ca else np.zeros(0)
+            info[(k, a, b)] = (float(E[p]), gam[p], sc)
+            for c, s_c in zip(ca, sc):
+                for e in cb:
+                    if prune:
+                        lb = lp * (s_c - ref.s[e]) ** 2 + ls * lm * (mov.sqrt_len[c] - ref.sqrt_len[e]) ** 2
+                        if lb >= ls * (mov.norm[c] + ref.norm[e]):
+                            continue
+                    nxt.append((k, c, e, float(s_c)))
+        level = nxt
+        depth += 1
+    # bottom-up: assignments from the children's costs
+    D: dict[tuple[int, int, int], float] = {}
+    assign: dict[tuple[int, int, int], list[tuple[int, int]]] = {}
+    for lev in reversed(levels):
+        for k, a, b, _ in lev:
+            key = (k, a, b)
+            if key not in info:
+                continue
+            E, _, sc = info[key]
+            mov, ref = movs[jobs[k][0]], refs[jobs[k][1]]
+            ca, cb = mov.children[a], ref.children[b]
+            total = lm * E
+            if not ca or not cb:
+                total += ls * (sum(mov.norm[c] for c in ca) + sum(ref.norm[e] for e in cb))
+                assign[key] = []
+            else:
+                k1, k2 = len(ca), len(cb)
+                C = np.full((k1 + k2, k2 + k1), np.inf)
+                for i, c in enumerate(ca):
+                    for j, e in enumerate(cb):
+                        d_ce = D.get((k, c, e))
+                        if d_ce is not None:
+                            C[i, j] = lp * (sc[i] - ref.s[e]) ** 2 + ls * d_ce
+                    C[i, k2 + i] = ls * mov.norm[c]
+                for j, e in enumerate(cb):
+                    C[k1 + j, j] = ls * ref.norm[e]
+                C[k1:, k2:] = 0.0
+                rows, cols = linear_sum_assignment(C)
+                total += float(C[rows, cols].sum())
+                assign[key] = [(ca[i], cb[j]) for i, j in zip(rows, cols) if i < k1 and j < k2]
+            D[key] = total
+    out = []
+    for k, (m, _, O) in enumerate(jobs):
+        gamma = np.tile(grid, (len(movs[m].parent), 1))
+        match: dict[int, int] = {}
+        stack = [(0, 0)]
+        while stack:
+            a, b = stack.pop()
+            match[a] = b
+            gamma[a] = info[(k, a, b)][1]
+            stack.extend(assign[(k, a, b)])
+        out.append(_Config(D[(k, 0, 0)], match, gamma, O))
+    return out
+
+
+def _rotation_update(mov: _Tree, ref: _Tree, cfg: _Config, lambdas: Lambdas, rotation: str, up: Tensor
+                     ) -> tuple[Tensor, float]:
+    """Best rotation for fixed matches and warps (weighted over all matched branches) and the new energy."""
+    a_idx = list(cfg.match.keys())
+    b_idx = [cfg.match[a] for a in a_idx]
+    w = slot_weights(torch.tensor([mov.depth[a] for a in a_idx]), lambdas)[0]
+    qw = warp_srvf(mov.q[a_idx], torch.from_numpy(cfg.gamma[a_idx]))
+    qr = ref.q[b_idx]
+    M = qr.shape[1]
+    A = torch.einsum("k,kmi,kmj->ij", w, qr, qw) / M
+    O = kabsch(A[None])[0] if rotation == "so3" else vertical_rotation(A[None], up)[0]
+
+    def matched_energy(R: Tensor) -> float:
+        return float((w * srvf_sq_norm(qr - _rotate(qw, R))).sum())
+
+    return O, cfg.energy - matched_energy(cfg.O) + matched_energy(O)
+
+
+def _initial_rotations(mov: _Tree, ref: _Tree, rotation: str, up: Tensor, n_starts: int,
+                       dp_opts: dict) -> list[Tensor]:
+    """Starting rotations: identity, then the main branches' registration spun about an axis."""
+    d = mov.q.shape[-1]
+    eye = torch.eye(d, dtype=torch.float64)
+    if rotation == "none":
+        return [eye]
+    opts = {k: v for k, v in dp_opts.items() if k in ("neighbourhood", "band", "coarse", "refine")}
+    reg = register_curves(mov.q[0], ref.q[0], rotation=rotation, srvf_input=True, up=up, **opts)
+    starts = [eye, reg.rotation.to(torch.float64)]
+    if d == 3 and n_starts > 1:
+        if rotation == "vertical":
+            axis = up
+        else:  # spin about the reference main branch's chord, the direction least fixed by it
+            chord = (ref.q[0] * ref.q[0].norm(dim=-1, keepdim=True)).sum(0)
+            axis = chord if bool(chord.norm() > 0) else up
+        angles = torch.arange(1, n_starts, dtype=torch.float64) * (2 * math.pi / n_starts)
+        spins = axis_rotation(axis.to(torch.float64), angles)
+        starts += [R @ starts[1] for R in spins]
+    return starts
+
+
+def _index_order_match(mov: _Tree, ref: _Tree) -> dict[int, int]:
+    match: dict[int, int] = {}
+    stack = [(0, 0)]
+    while stack:
+        a, b = stack.pop()
+        match[a] = b
+        stack.extend(zip(mov.children[a], ref.children[b]))
+    return match
+
+
+def index_order_matches(moving: Trees, reference: Trees) -> list[tuple[int, int]]:
+    """The index-order correspondence: children matched by order of ``s`` at every node, extras to null."""
+    lam = (1.0, 1.0, 1.0)
+    m = _index_order_match(_prepare(moving, lam), _prepare(reference, lam))
+    return sorted(m.items())
+
+
+def _build_aligned(mov: _Tree, ref: _Tree, match: dict[int, int], gamma: np.ndarray, O: Tensor,
+                   lambdas: Lambdas) -> AlignedTrees:
+    """Write the registered moving tree and the reference in one layout (differentiable in the points)."""
+    Nm, Nr = len(mov.parent), len(ref.parent)
+    dtype = torch.float64
+    pts_m = mov.points.to(dtype)
+    pts_r = ref.points.to(dtype)
+    T = pts_r.shape[1]
+    grid = np.linspace(0.0, 1.0, T)
+    slot_of = [-1] * Nm
+    slot_parent = list(ref.parent)
+    slot_depth = list(ref.depth)
+    for a in range(Nm):  # parents before children, so a parent's slot exists
+        if a in match:
+            slot_of[a] = match[a]
+        else:
+            slot_of[a] = len(slot_parent)
+            ps = slot_of[mov.parent[a]]
+            slot_parent.append(ps)
+            slot_depth.append(slot_depth[ps] + 1)
+    S = len(slot_parent)
+    g = torch.from_numpy(gamma).to(dtype)
+    qm = _rotate(warp_srvf(srvf(pts_m), g), O.to(dtype))
+    qr = srvf(pts_r)
+    M, d = qr.shape[1:]
+    # a child's parameter moves with its parent's warp (identity for unmatched parents)
+    s_m = np.array([0.0 if a == 0 else np.interp(mov.s[a], gamma[mov.parent[a]], grid) for a in range(Nm)])
+    q = torch.zeros(2, S, M, d, dtype=dtype)
+    s = torch.zeros(2, S, dtype=dtype)
+    present = torch.zeros(2, S, dtype=torch.bool)
+    source = torch.full((2, S), -1, dtype=torch.long)
+    idx_m = torch.tensor(slot_of, dtype=torch.long)
+    q = q.index_put((torch.zeros(Nm, dtype=torch.long), idx_m), qm)
+    q = q.index_put((torch.ones(Nr, dtype=torch.long), torch.arange(Nr)), qr)
+    s[1, :Nr] = torch.from_numpy(ref.s)
+    s[0, :Nr] = torch.from_numpy(ref.s)  # null partners sit at the same s
+    s[0, idx_m] = torch.from_numpy(s_m)
+    s[1, Nr:] = s[0, Nr:]
+    present[0, idx_m] = True
+    present[1, :Nr] = True
+    source[0, idx_m] = torch.arange(Nm)
+    source[1, :Nr] = torch.arange(Nr)
+    root = torch.stack([pts_m[0, 0], pts_r[0, 0]])
+    return AlignedTrees(q, s, present, root, torch.tensor(slot_parent), torch.tensor(slot_depth), source,
+                        tuple(float(x) for x in lambdas))
+
+
+def _pair_distance(aligned: AlignedTrees) -> Tensor:
+    f = aligned.features()
+    e = (f[0] - f[1]).square().sum()
+    return torch.where(e > 0, e.clamp_min(1e-300).sqrt(), torch.zeros_like(e))
+
+
+# ----------------------------------------------------------------------------- public API
+
+
+def _check_lambdas(lambdas: Sequence[float]) -> Lambdas:
+    lam = tuple(float(x) for x in lambdas)
+    if len(lam) != 3 or any(not math.isfinite(x) or x < 0 for x in lam) or lam[0] <= 0 or lam[2] <= 0:
+        raise ValueError(f"lambdas must be (lm > 0, lp >= 0, ls > 0), got {lambdas}")
+    return lam  # type: ignore[return-value]
+
+
+def register_to_reference(trees: Trees, reference: Trees, lambdas: Sequence[float] = (1.0, 1.0, 1.0),
+                          rotation: str = "none", up: Sequence[float] | Tensor | None = None, n_starts: int = 4,
+                          max_iters: int = 10, tol: float = 1e-6, neighbourhood: int = 6, band: int | None = 6,
+                          coarse: int | None = 32, refine: int = 0, prune: bool = True) -> list[TreeRegistration]:
+    """Register every tree of ``trees`` (moving) onto the single tree ``reference``, all at once.
+
+    Args:
+        trees: ``n`` moving trees (any numbers of branches); resampled to ``reference.T`` if needed.
+        reference: one tree.
+        lambdas: ``(lm, lp, ls)`` weights of the main-branch SRVF, the bifurcation parameters and the subtrees.
+        rotation: ``"none"``, ``"vertical"`` (about ``up``, default z) or ``"so3"``.
+        n_starts: starting rotations spun about the vertical (or the reference main branch) axis.
+        max_iters, tol: rounds of (warps + assignments, rotation); stop when the energy decreases by
+            less than ``tol`` relatively.
+        neighbourhood, band, coarse, refine: DP settings, see :func:`torch4dtree.warping.dp_warp`.
+        prune: skip subtree pairs that provably cannot be matched (exact: does not change the result).
+
+    Returns:
+        One :class:`TreeRegistration` per moving tree. Every depth of every registration (and every
+        rotation start) shares one batched DP call.
+    """
+    lam = _check_lambdas(lambdas)
+    check_rotation_mode(rotation, reference.dim)
+    if reference.num_trees != 1:
+        raise ValueError(f"reference must be a single tree, got {reference.num_trees}")
+    if trees.dim != reference.dim:
+        raise ValueError(f"dimensions differ: {trees.dim} vs {reference.dim}")
+    if trees.T != reference.T:
+        trees = trees.resample(reference.T)
+    up_t = torch.as_tensor((0.0, 0.0, 1.0) if up is None else up, dtype=torch.float64)
+    dp_opts = {"neighbourhood": neighbourhood, "band": band, "coarse": coarse, "refine": refine}
+    ref = _prepare(reference, lam)
+    movs = [_prepare(t, lam) for t in trees.split()]
+    with torch.no_grad():
+        starts = [_initial_rotations(m, ref, rotation, up_t, n_starts, dp_opts) for m in movs]
+        best: list[_Config | None] = [None] * len(movs)
+        jobs = [(m, 0, O) for m, Os in enumerate(starts) for O in Os]
+        last = [math.inf] * len(jobs)
+        for _ in range(max(max_iters, 1)):
+            configs = _solve(movs, [ref], jobs, lam, dp_opts, prune)
+            nxt, nlast = [], []
+            for (m, _, _), cfg, prev in zip(jobs, configs, last):
+                cur = best[m]
+                if cur is None or cfg.energy < cur.energy:
+                    best[m] = cfg
+                if rotation == "none":
+                    continue
+                O_new, e_new = _rotation_update(movs[m], ref, cfg, lam, rotation, up_t)
+                cand = _Config(e_new, cfg.match, cfg.gamma, O_new)
+                if e_new < best[m].energy:  # type: ignore[union-attr]
+                    best[m] = cand
+                e = min(e_new, cfg.energy)
+                if not math.isfinite(prev) or e < prev - tol * prev:
+                    nxt.append((m, 0, O_new))
+                    nlast.append(e)
+            if not nxt:
+                break
+            jobs, last = nxt, nlast
+    out = []
+    for mov, cfg in zip(movs, best):
+        assert cfg is not None
+        aligned = _build_aligned(mov, ref, cfg.match, cfg.gamma, cfg.O, lam)
+        dist = _pair_distance(aligned)
+        eye = torch.eye(reference.dim, dtype=torch.float64)
+        ident = np.tile(np.linspace(0.0, 1.0, reference.T), (len(mov.parent), 1))
+        base_match = _index_order_match(mov, ref)
+        base = _build_aligned(mov, ref, base_match, ident, eye, lam)
+        dist_before = _pair_distance(base)
+        used_base = bool(dist_before < dist)
+        if used_base:  # the index-order solution is a valid candidate: never return worse
+            cfg = _Config(float(dist_before) ** 2, base_match, ident, eye)
+            aligned, dist = base, dist_before
+        matches = sorted(cfg.match.items())
+        matched_ref = set(cfg.match.values())
+        out.append(TreeRegistration(
+            dist, dist_before, cfg.O.to(trees.dtype), torch.from_numpy(cfg.gamma).to(trees.dtype), matches,
+            [a for a in range(len(mov.parent)) if a not in cfg.match],
+            [b for b in range(len(ref.parent)) if b not in matched_ref], aligned, used_base,
+        ))
+    return out
+
+
+def register_trees(moving: Trees, reference: Trees, lambdas: Sequence[float] = (1.0, 1.0, 1.0),
+                   rotation: str = "none", **kwargs: object) -> TreeRegistration:
+    """Register one tree onto another (SPEC §3). See :func:`register_to_reference` for the settings.
+
+    Returns a :class:`TreeRegistration`; ``distance`` is the tree-shape distance (never above
+    ``distance_before``, the index-order one).
+    """
+    if moving.num_trees != 1:
+        raise ValueError(f"moving must be a single tree, got {moving.num_trees}")
+    return register_to_reference(moving, reference, lambdas, rotation, **kwargs)[0]  # type: ignore[arg-type]
+
+
+# ----------------------------------------------------------------------------- all pairs
+
+_WORKER_TREES: list[Trees] = []
+_WORKER_KW: dict = {}
+
+
+def _worker_init(trees: list[Trees], kwargs: dict) -> None:
+    """Pool initializer: one thread per process (the processes are the parallelism)."""
+    global _WORKER_TREES, _WORKER_KW
+    torch.set_num_threads(1)
+    try:
+        import numba
+
+        numba.set_num_threads(1)
+    except (ImportError, ValueError):  # pragma: no cover - numba missing or already single-threaded
+        pass
+    _WORKER_TREES, _WORKER_KW = trees, kwargs
+
+
+def _row(i: int) -> tuple[int, list[float]]:
+    """Distances from tree ``i`` (reference) to all trees after it (moving)."""
+    trees = _WORKER_TREES
+    if i + 1 >= len(trees):
+        return i, []
+    res = register_to_reference(Trees.cat(trees[i + 1:]), trees[i], **_WORKER_KW)
+    return i, [float(r.distance) for r in res]
+
+
+def pairwise_distances(trees: Trees, processes: int | None = None, progress: bool = True,
+                       **kwargs: object) -> Tensor:
+    """All-pairs tree-shape distances ``(n, n)`` (symmetric, zero diagonal), over all cores.
+
+    Tree ``j > i`` is registered onto tree ``i`` (one batched :func:`register_to_reference` per row);
+    rows are spread over a process pool (``processes`` defaults to the CPU count; 1 runs inline)
+    with a tqdm progress bar. ``kwargs`` are passed to :func:`register_to_reference`.
+    """
+    from tqdm.auto import tqdm
+
+    n = trees.num_trees
+    split = trees.split()
+    out = torch.zeros(n, n, dtype=torch.float64)
+    procs = processes if processes is not None else (os.cpu_count() or 1)
+    procs = max(1, min(procs, n - 1)) if n > 1 else 1
+    bar = tqdm(total=n * (n - 1) // 2, disable=not progress, desc="pairwise distances", unit="pair")
+    rows = range(n - 1)
+
+    def fill(i: int, vals: list[float]) -> None:
+        for k, v in enumerate(vals):
+            out[i, i + 1 + k] = out[i + 1 + k, i] = v
+        bar.update(len(vals))
+
+    if procs == 1:
+        global _WORKER_TREES, _WORKER_KW
+        saved = (_WORKER_TREES, _WORKER_KW)
+        _WORKER_TREES, _WORKER_KW = split, dict(kwargs)
+        try:
+            for i in rows:
+                fill(*_row(i))
+        finally:
+            _WORKER_TREES, _WORKER_KW = saved
+    else:
+        import multiprocessing as mp
+
+        ctx = mp.get_context("spawn")  # fork after torch/numba threads started is unsafe
+        with ctx.Pool(procs, initializer=_worker_init, initargs=(split, dict(kwargs))) as pool:
+            for i, vals in pool.imap_unordered(_row, rows):
+                fill(i, vals)
+    bar.close()
+    return out
