@@ -117,3 +117,17 @@ def test_sequence_times_and_selection(rng):
         TreeSequence(trees, torch.tensor([1.0, 1.0, 2.0]))
     with pytest.raises(TreeError, match="frames"):
         TreeSequence(trees, torch.tensor([1.0, 2.0]))
+
+
+def test_to_branches_round_trip_and_sequence_to(rng):
+    trees, _ = make_trees(rng, n=2)
+    per_tree = trees.to_branches()
+    again = Trees.from_branches([b for b, _ in per_tree], [p for _, p in per_tree], T=trees.T, dtype=torch.float64)
+    # rebuilding re-resamples each polyline: points move along it by a small fraction of the spacing
+    assert torch.equal(again.parent, trees.parent)
+    spacing = trees.branch_lengths() / (trees.T - 1)
+    assert ((again.points - trees.points).norm(dim=-1).amax(1) < 0.02 * spacing).all()
+    torch.testing.assert_close(again.s, trees.s, atol=1e-3, rtol=0)
+    seq = TreeSequence(trees, torch.tensor([0.0, 1.0]))
+    f32 = seq.to(torch.float32)
+    assert f32.times.dtype == torch.float32 and f32.frames.points.dtype == torch.float32

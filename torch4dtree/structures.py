@@ -345,7 +345,8 @@ def _build_one_tree(
         if kids:
             curve = resampled[i][None].expand(len(kids), -1, -1)
             ks = project_on_polyline(curve, torch.stack([raw[k][0] for k in kids]))[0].tolist()
-            stack.extend(sorted(zip(kids, ks), key=lambda ks_: -ks_[1]))  # popped in order of s
+            # popped in order of s; equal s keep their input order
+            stack.extend(sorted(zip(kids, ks), key=lambda kid_s: (-kid_s[1], -kid_s[0])))
     if len(order) != n:
         missing = sorted(set(range(n)) - set(order))
         raise TreeError(f"{where}: branches {missing} are not connected to the main branch (cycle?)")
