@@ -15,17 +15,23 @@ from .structures import DEFAULT_T, TreeError
 
 
 def _add_load_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--T", type=int, default=DEFAULT_T, help="points per branch after resampling (default %(default)s)")
+    p.add_argument("--config", default=None, help="a JSON settings file (see configs/); flags given override it")
+    p.add_argument("--T", type=int, default=None, help=f"points per branch after resampling (default {DEFAULT_T})")
     p.add_argument("--max-layers", type=int, default=None, help="keep at most this many branch layers")
-    p.add_argument("--min-branch-length", type=float, default=0.0, help="drop SWC side branches shorter than this")
-    p.add_argument("--repair", action="store_true", help="mend SWC cycles / parts cut off from the root (warns)")
+    p.add_argument("--min-branch-length", type=float, default=None, help="drop SWC side branches shorter than this")
+    p.add_argument("--repair", action="store_true", default=None,
+                   help="mend SWC cycles / parts cut off from the root (warns)")
 
 
 def _load_options(args: argparse.Namespace):  # noqa: ANN202 - LoadOptions, imported lazily
-    from .io import LoadOptions
+    """Loading options from ``--config`` (if any) with the flags given on the command line on top."""
+    from .config import Config, load_config
 
-    return LoadOptions(T=args.T, max_layers=args.max_layers, min_branch_length=args.min_branch_length,
-                       repair=args.repair)
+    config = load_config(args.config) if args.config else Config()
+    for name in ("T", "max_layers", "min_branch_length", "repair"):
+        if getattr(args, name) is not None:  # given on the command line
+            setattr(config, name, getattr(args, name))
+    return config.load_options()
 
 
 # ------------------------------------------------------------------------------------- synth

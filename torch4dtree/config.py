@@ -1,0 +1,67 @@
+"""Settings shared by the commands, as a dataclass that a small JSON file can override.
+
+``configs/`` holds one file per kind of data (tomato, maize, neurons). Unknown keys are errors,
+so a typo never silently falls back to a default.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from .structures import DEFAULT_T, TreeError
+
+ROTATIONS = ("none", "vertical", "so3")
+
+
+@dataclass
+class Config:
+    """Loading and registration settings (SPEC §2, §3)."""
+
+    T: int = DEFAULT_T
+    max_layers: int | None = None
+    min_branch_length: float = 0.0
+    repair: bool = False
+    rotation: str = "none"
+    lambdas: tuple[float, float, float] = (1.0, 1.0, 1.0)  # (lm, ls, lp)
+    neighbourhood: int = 6
+    notes: str = field(default="", compare=False)
+
+    def __post_init__(self) -> None:
+        if self.T < 2:
+            raise TreeError(f"T must be at least 2, got {self.T}")
+        if self.rotation not in ROTATIONS:
+            raise TreeError(f"rotation must be one of {ROTATIONS}, got {self.rotation!r}")
+        self.lambdas = tuple(float(x) for x in self.lambdas)  # type: ignore[assignment]
+        if len(self.lambdas) != 3 or min(self.lambdas) < 0:
+            raise TreeError(f"lambdas must be three non-negative weights (lm, ls, lp), got {self.lambdas}")
+
+    def load_options(self):  # noqa: ANN201 - io.LoadOptions (io imports structures; keep this module light)
+        from .io import LoadOptions
+
+        return LoadOptions(T=self.T, max_layers=self.max_layers, min_branch_length=self.min_branch_length,
+                           repair=self.repair)
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+def load_config(path: str | Path) -> Config:
+    """Read a JSON config; keys not listed in :class:`Config` are rejected with their name."""
+    path = Path(path)
+    try:
+        raw = json.loads(path.read_text())
+    except (OSError, ValueError) as e:
+        raise TreeError(f"{path}: cannot read the config ({e})") from None
+    if not isinstance(raw, dict):
+        raise TreeError(f"{path}: a config is a JSON object of settings")
+    known = {f.name for f in dataclasses.fields(Config)}
+    unknown = sorted(set(raw) - known)
+    if unknown:
+        raise TreeError(f"{path}: unknown setting(s) {unknown}; known: {sorted(known)}")
+    try:
+        return Config(**raw)
+    except TreeError as e:
+        raise TreeError(f"{path}: {e}") from None
