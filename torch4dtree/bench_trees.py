@@ -1,0 +1,101 @@
+"""Benchmark of 3D tree registration on the Pheno4D skeletons (consecutive-day pairs), vs the paper.
+
+The paper (MATLAB, unspecified CPU) reports 2.3 s to register two 3D trees. We time
+:func:`register_trees` on every consecutive-day pair of every tomato and maize plant (SWC
+skeletons) and report per kind: pairs, median / max seconds, the speed-up vs 2.3 s, and the
+distances before (index order) and after registration.
+"""
+
+from __future__ import annotations
+
+import statistics
+import time
+from pathlib import Path
+
+import torch
+
+from .io import LoadOptions, read_tree
+from .registration import register_trees
+from .structures import Trees
+
+__all__ = ["PAPER_SECONDS", "benchmark_trees", "consecutive_pairs", "default_data_root"]
+
+PAPER_SECONDS = 2.3
+
+
+def default_data_root() -> Path:
+    """``<repo>/../shared/data/pheno4d`` (where the project keeps the real data)."""
+    return Path(__file__).resolve().parents[2] / "shared" / "data" / "pheno4d"
+
+
+def _kind(plant: str) -> str:
+    return "maize" if plant.lower().startswith("maize") else "tomato"
+
+
+def consecutive_pairs(root: str | Path | None = None, T: int = 64, kinds: tuple[str, ...] = ("tomato", "maize"),
+                      max_pairs: int | None = None) -> list[tuple[str, str, Trees, Trees]]:
+    """``[(kind, name, day_k tree, day_k+1 tree), ...]`` from ``root/swc/<plant>/*.swc`` (sorted by name = date)."""
+    import warnings
+
+    root = Path(root) if root is not None else default_data_root()
+    out: list[tuple[str, str, Trees, Trees]] = []
+    for plant in sorted(p for p in (root / "swc").iterdir() if p.is_dir()):
+        kind = _kind(plant.name)
+        if kind not in kinds:
+            continue
+        files = sorted(plant.glob("*.swc"))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # the reader reports repaired skeletons; not our business here
+            trees = [read_tree(f, LoadOptions(T=T, repair=True, dtype=torch.float64)) for f in files]
+        for k in range(len(files) - 1):
+            a, b = trees[k], trees[k + 1]
+            if a is not None and b is not None:
+                out.append((kind, f"{plant.name}:{files[k].stem}->{files[k + 1].stem}", a, b))
+    return out[:max_pairs] if max_pairs is not None else out
+
+
+def _summary(times: list[float], before: list[float], after: list[float]) -> dict:
+    med = statistics.median(times)
+    return {
+        "pairs": len(times),
+        "median_s": med,
+        "max_s": max(times),
+        "mean_s": statistics.fmean(times),
+        "speedup_vs_paper": PAPER_SECONDS / med if med > 0 else float("inf"),
+        "distance_before_mean": statistics.fmean(before),
+        "distance_after_mean": statistics.fmean(after),
+        "distance_before_median": statistics.median(before),
+        "distance_after_median": statistics.median(after),
+        "improved_pairs": sum(a < b for a, b in zip(after, before)),
+    }
+
+
+def benchmark_trees(root: str | Path | None = None, T: int = 64, rotation: str = "none",
+                    kinds: tuple[str, ...] = ("tomato", "maize"), repeats: int = 1, max_pairs: int | None = None,
+                    **kwargs: object) -> dict:
+    """Time :func:`register_trees` (day ``k+1`` onto day ``k``) on all consecutive-day Pheno4D pairs.
+
+    Returns ``{"pairs", "median_s", "max_s", "speedup_vs_paper", ... , "per_kind": {kind: {...}},
+    "rows": [(kind, name, seconds, distance_before, distance_after, n_branches_a, n_branches_b)]}``.
+    The time of a pair is the best of ``repeats`` runs (the machine may be shared). A warm-up
+    registration compiles the numba kernels first.
+    """
+    pairs = consecutive_pairs(root, T, kinds, max_pairs)
+    if not pairs:
+        raise FileNotFoundError(f"no Pheno4D pairs found under {root or default_data_root()}")
+    register_trees(pairs[0][3], pairs[0][2], rotation=rotation, **kwargs)  # warm-up (JIT)
+    rows = []
+    for kind, name, a, b in pairs:
+        best = float("inf")
+        for _ in range(max(repeats, 1)):
+            t0 = time.perf_counter()
+            res = register_trees(b, a, rotation=rotation, **kwargs)
+            best = min(best, time.perf_counter() - t0)
+        rows.append((kind, name, best, float(res.distance_before), float(res.distance),
+                     int(a.num_branches[0]), int(b.num_branches[0])))
+    out = _summary([r[2] for r in rows], [r[3] for r in rows], [r[4] for r in rows])
+    out["per_kind"] = {k: _summary([r[2] for r in rows if r[0] == k], [r[3] for r in rows if r[0] == k],
+                                   [r[4] for r in rows if r[0] == k]) for k in kinds if any(r[0] == k for r in rows)}
+    out["rows"] = rows
+    out["T"], out["rotation"], out["paper_seconds"] = T, rotation, PAPER_SECONDS
+    return out
