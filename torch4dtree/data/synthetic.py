@@ -121,12 +121,12 @@ def _tomato_develop(b: float) -> float:
 
 
 def _maize_develop(b: float) -> float:
-    # fast, slightly saturating growth: about 50 mm on the first day, 380 mm on the last
-    return 50.0 + 330.0 * (1.0 - math.exp(-0.7 * b)) / (1.0 - math.exp(-0.7))
+    # fast, slightly saturating growth: about 50 mm on the first day, 345 mm on the last
+    return 50.0 + 295.0 * (1.0 - math.exp(-0.7 * b)) / (1.0 - math.exp(-0.7))
 
 
 _MODELS = {
-    "tomato": _KindModel("tomato", _tomato_develop, node_drift=0.25, droop_pow=1.6),
+    "tomato": _KindModel("tomato", _tomato_develop, node_drift=0.15, droop_pow=1.6),
     "maize": _KindModel("maize", _maize_develop, node_drift=0.10, droop_pow=2.0),
 }
 
@@ -200,7 +200,7 @@ def _tomato_structure(rng: np.random.Generator) -> _PlantModel:
             droop=rng.uniform(45, 65) * _DEG, droop_max=85 * _DEG,
             wobble_theta=_wobble(rng, 0.08), wobble_phi=_wobble(rng, 0.12),
         ))
-        pairs = [0.36, 0.56, 0.73] if rng.uniform() < 0.6 else [0.4, 0.65]
+        pairs = [0.36, 0.56, 0.73] if rng.uniform() < 0.35 else [0.4, 0.65]
         for p, u in enumerate(pairs, 1):
             u = u + rng.uniform(-0.03, 0.03)
             for side_i, side in ((1, 1.0), (2, -1.0)):
@@ -208,7 +208,7 @@ def _tomato_structure(rng: np.random.Generator) -> _PlantModel:
                 leaflet = len(branches)
                 branches.append(_Branch(
                     label=k * 100 + j, parent=leaf, attach=u, rate=rng.uniform(0.3, 0.45),
-                    threshold=18.0 + 14.0 * (p - 1) + rng.uniform(-3, 3),
+                    threshold=40.0 + 30.0 * (p - 1) + rng.uniform(-3, 3),
                     spread=rng.uniform(55, 75) * _DEG, side=side,
                     droop=rng.uniform(40, 70) * _DEG, droop_max=60 * _DEG,
                     wobble_theta=_wobble(rng, 0.06), wobble_phi=_wobble(rng, 0.08),
@@ -233,9 +233,9 @@ def _maize_structure(rng: np.random.Generator) -> _PlantModel:
     wob = np.stack([_stem_wobble(rng, 0.02) for _ in range(2)])
     branches: list[_Branch] = []
     phi0 = rng.uniform(0, 2 * math.pi)
-    internode = rng.uniform(52.0, 72.0)  # plant-specific: how fast new leaves follow each other
+    internode = rng.uniform(60.0, 80.0)  # plant-specific: how fast new leaves follow each other
     k, H = 1, 8.0 + rng.uniform(0, 6)
-    while H < 345.0 and k < 100:
+    while H < 330.0 and k < 100:
         branches.append(_Branch(
             label=k, parent=-1, attach=H, max_len=rng.uniform(280, 330), width=110.0,
             theta_young=rng.uniform(8, 15) * _DEG, theta_mature=rng.uniform(18, 32) * _DEG,
@@ -492,22 +492,23 @@ def synthetic_plant(
         raise ValueError(f"seed must be non-negative, got {seed}")
     if not 0.0 < margin < 1.0:
         raise ValueError(f"margin must lie in (0, 1), got {margin}")
-    rng = np.random.default_rng([seed, 0])
+    kid = KINDS.index(kind)  # different kinds with one seed get unrelated draws
+    rng = np.random.default_rng([seed, kid, 0])
     model = _STRUCTURES[kind](rng)
     if times is None:
         if n_frames < 2:
             raise ValueError(f"a synthetic plant needs at least 2 frames, got n_frames={n_frames}")
-        t = default_times(np.random.default_rng([seed, 1]), n_frames)
+        t = default_times(np.random.default_rng([seed, kid, 1]), n_frames)
     else:
         t = np.asarray(torch.as_tensor(times).double().cpu()).reshape(-1)
         if len(t) < 2 or not np.all(np.diff(t) > 0) or not np.isfinite(t).all():
             raise ValueError(f"times must be at least 2 finite, strictly increasing values, got {t.tolist()}")
-    grid, h = sample_growth_warp(np.random.default_rng([seed, 2]), grid_size, warp_strength)
+    grid, h = sample_growth_warp(np.random.default_rng([seed, kid, 2]), grid_size, warp_strength)
     tn = (t - t[0]) / (t[-1] - t[0])
     bio = np.interp(tn, grid, h)
     branches, parents, labels = [], [], []
     for j, b in enumerate(bio):
-        polys, par, lab = _frame(model, float(b), np.random.default_rng([seed, 3, j]), noise, margin, min_length)
+        polys, par, lab = _frame(model, float(b), np.random.default_rng([seed, kid, 3, j]), noise, margin, min_length)
         branches.append(polys)
         parents.append(par)
         labels.append(lab)
