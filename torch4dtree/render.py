@@ -757,6 +757,28 @@ def _publish(tmp: Path, path: Path, overwrite: bool) -> None:
     tmp.unlink()
 
 
+def _gif_bytes(frames: np.ndarray, fps: float) -> bytes:
+    """A looping GIF of ``(n, H, W, 3)`` frames, one GIF frame per input frame.
+
+    Pillow's animated-GIF writer merges identical consecutive frames (a held time point), which
+    would change the frame count, so the frames are written one by one with their own palettes.
+    """
+    from PIL import GifImagePlugin, Image
+
+    ms = 1000.0 / fps
+    ims = [Image.fromarray(f).quantize(colors=256, dither=Image.Dither.NONE) for f in frames]
+    out = bytearray()
+    for chunk in GifImagePlugin.getheader(ims[0], None, {"loop": 0, "duration": ms})[0]:
+        out += chunk
+    for k, im in enumerate(ims):
+        # GIF delays are in centiseconds: spread the rounding so the total duration stays right
+        delay = 10 * (round((k + 1) * ms / 10) - round(k * ms / 10))
+        for chunk in GifImagePlugin.getdata(im, duration=delay, include_color_table=True):
+            out += chunk
+    out += b";"
+    return bytes(out)
+
+
 def save_video(path: str | Path, frames: np.ndarray, fps: float = 4.0, overwrite: bool = False) -> Path:
     """Write ``(n, H, W, 3)`` uint8 frames as a GIF (looping) or an MP4 (H.264, yuv420p).
 
@@ -778,10 +800,7 @@ def save_video(path: str | Path, frames: np.ndarray, fps: float = 4.0, overwrite
     if path.exists() and not overwrite:
         raise FileExistsError(f"{path} exists; pass overwrite=True (--overwrite) to replace it")
     if suffix == ".gif":
-        import imageio.v3 as iio
-
-        data = iio.imwrite("<bytes>", arr, extension=".gif", duration=1000.0 / fps, loop=0)
-        return write_bytes_safely(path, data, overwrite)
+        return write_bytes_safely(path, _gif_bytes(arr, fps), overwrite)
     import imageio_ffmpeg
 
     arr = _even(arr)
