@@ -7,13 +7,15 @@
 #   libgl1           libGL.so.1, where PyOpenGL's EGL platform looks up desktop GL functions
 #                    (pyrender needs OpenGL 3.3 core; pulls libglx0 + libglx-mesa0)
 #   libgl1-mesa-dri  the Mesa drivers themselves, including the swrast/llvmpipe software renderer
+#   libxrender1      `import pyrender` imports pyglet's X11 window code, which loads libXrender
+#                    (torch4dtree.render avoids it on displayless machines with PYGLET_HEADLESS)
 #
 # ffmpeg is not needed: imageio-ffmpeg ships a static ffmpeg with libx264. Fonts are not
 # needed: Pillow (>= 10.1) embeds a scalable font.
 # .ci/run also needs `python3 -m venv`, which Debian splits into python3-venv: added when missing.
 set -euo pipefail
 
-packages=(libegl1 libegl-mesa0 libgl1 libgl1-mesa-dri)
+packages=(libegl1 libegl-mesa0 libgl1 libgl1-mesa-dri libxrender1)
 
 if ! command -v dpkg-query >/dev/null 2>&1; then
     echo "system-packages.sh: not a Debian/Ubuntu system; install EGL + Mesa (e.g. mesa-libEGL mesa-dri-drivers) yourself" >&2

@@ -61,7 +61,7 @@ COLOR_MODES = ("layer", "label")
 VIDEO_SUFFIXES = (".gif", ".mp4")
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 # Debian/Ubuntu packages that give pyrender an EGL context on Mesa's software renderer (see .ci/system-packages.sh).
-GL_PACKAGES = "libegl1 libegl-mesa0 libgl1 libgl1-mesa-dri"
+GL_PACKAGES = "libegl1 libegl-mesa0 libgl1 libgl1-mesa-dri libxrender1"
 
 
 @dataclass(frozen=True)
@@ -366,6 +366,9 @@ def _gl_error(err: BaseException) -> RuntimeError:
 def _pyrender() -> Any:
     """Import pyrender on EGL, turning a missing package or GL library into a clear error."""
     os.environ.setdefault("PYOPENGL_PLATFORM", "egl")  # before OpenGL is first imported
+    if "pyglet" not in sys.modules and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+        # pyrender imports pyglet's window code; without a display use its EGL backend, not X11's
+        os.environ.setdefault("PYGLET_HEADLESS", "true")
     try:
         import pyrender
     except ModuleNotFoundError as e:
