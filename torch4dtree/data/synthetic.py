@@ -37,8 +37,8 @@ same organ in every frame and in every plant of the same kind.
 
 Randomness: ``numpy.random.default_rng`` (PCG64) seeded from the plant seed (plant structure)
 and from ``(seed, frame)`` (per-frame scanning noise), so a seed gives the same plant on any
-machine. Noise is a smooth random displacement of each branch (it vanishes at the branch's base,
-so children stay attached), independent per frame.
+machine. Noise is a smooth random bend of each branch, independent per frame: its tip moves by
+about ``noise`` mm, its base stays (children stay attached) and its length is unchanged.
 """
 
 from __future__ import annotations
@@ -307,13 +307,17 @@ def _polyline(start: np.ndarray, dirs: np.ndarray, length: float) -> np.ndarray:
     return start + np.concatenate([np.zeros((1, 3)), np.cumsum(steps, 0)])
 
 
-def _stem_points(plant: _PlantModel, L: float, step: float = 1.0) -> np.ndarray:
-    """The stem up to arc length ``L``: its shape is fixed in absolute arc length, so it only extends."""
+def _stem_points(plant: _PlantModel, L: float, jitter: np.ndarray, step: float = 1.0) -> np.ndarray:
+    """The stem up to arc length ``L``: its shape is fixed in absolute arc length, so it only extends.
+
+    ``jitter (2, 3, 2)``: this frame's noise on the two lateral slopes (see :func:`_angle_noise`).
+    """
     n = max(int(math.ceil(L / step)), 8)
     a = (np.arange(n) + 0.5) * (L / n)  # segment midpoints (mm from the root)
     w = plant.stem_wobble
     lateral = [
         plant.stem_lean[ax] + (w[ax, :, :1] * np.sin(2 * math.pi * a[None] / w[ax, :, 1:2] + w[ax, :, 2:])).sum(0)
+        + _eval_wobble(jitter[ax], a / L)
         for ax in range(2)
     ]
     d = np.stack([lateral[0], lateral[1], np.ones(n)], -1)
@@ -333,15 +337,20 @@ def _point_and_tangent(poly: np.ndarray, frac: float) -> tuple[np.ndarray, np.nd
 
 def _branch_points(
     br: _Branch, start: np.ndarray, base_dir: np.ndarray, length: float, maturity: float, droop_pow: float,
+    jitter: np.ndarray,
 ) -> np.ndarray:
-    """A side branch: start direction (spherical angles), gravity droop growing with length, smooth wobble."""
+    """A side branch: start direction (spherical angles), gravity droop growing with length, smooth wobble.
+
+    ``jitter (2, 3, 2)``: this frame's noise on the inclination and azimuth (see :func:`_angle_noise`).
+    """
     n = int(np.clip(math.ceil(length / 1.0), 8, 200))
     u = (np.arange(n) + 0.5) / n
     theta0 = math.acos(float(np.clip(base_dir[2], -1.0, 1.0)))
     phi0 = math.atan2(float(base_dir[1]), float(base_dir[0]))
     droop = min(br.droop * length / 100.0, br.droop_max) * (0.5 + 0.5 * maturity)
-    theta = np.clip(theta0 + droop * u**droop_pow + _eval_wobble(br.wobble_theta, u), 0.02, math.pi - 0.2)
-    phi = phi0 + _eval_wobble(br.wobble_phi, u)
+    theta = theta0 + droop * u**droop_pow + _eval_wobble(br.wobble_theta, u) + _eval_wobble(jitter[0], u)
+    theta = np.clip(theta, 0.02, math.pi - 0.2)
+    phi = phi0 + _eval_wobble(br.wobble_phi, u) + _eval_wobble(jitter[1], u)
     return _polyline(start, _directions(theta, phi), length)
 
 
@@ -355,15 +364,15 @@ def _lateral_direction(tangent: np.ndarray, spread: float, side: float) -> np.nd
     return d / np.linalg.norm(d)
 
 
-def _smooth_noise(rng: np.random.Generator, n: int, sigma: float) -> np.ndarray:
-    """``(n, 3)`` smooth random displacement along a branch, zero at its base."""
-    if sigma <= 0:
-        return np.zeros((n, 3))
-    u = np.linspace(0.0, 1.0, n)
-    m = np.arange(1, 5)
-    basis = np.sin(np.outer(u, m) * math.pi / 2)  # (n, 4), zero at u = 0
-    coef = rng.normal(0.0, sigma, (4, 3)) / np.sqrt(m)[:, None]
-    return basis @ coef
+def _angle_noise(rng: np.random.Generator, sigma: float, length: float) -> np.ndarray:
+    """Per-frame noise as ``(2, 3, 2)`` smooth random perturbations of a branch's two direction angles.
+
+    Bending the direction (instead of moving points) keeps every branch's length exact, so the
+    longest-path margin holds whatever the noise; the tip moves by about ``sigma`` mm, the base
+    not at all (children stay attached). Tiny organs bend at most ~0.15 rad.
+    """
+    amp = min(sigma / max(length, 1e-9), 0.15) if sigma > 0 else 0.0
+    return np.stack([_wobble(rng, amp), _wobble(rng, amp)])
 
 
 def _frame(
@@ -371,8 +380,7 @@ def _frame(
 ) -> tuple[list[np.ndarray], list[int], list[int]]:
     """Polylines, parent indices and labels of the plant at biological time ``b`` (present branches only)."""
     L, length, at = _lengths(plant, b, margin)
-    stem = _stem_points(plant, L)
-    stem = stem + _smooth_noise(rng, len(stem), noise)
+    stem = _stem_points(plant, L, _angle_noise(rng, noise, L))
     polys: list[np.ndarray] = [stem]
     parents: list[int] = [-1]
     labels: list[int] = [0]
@@ -391,9 +399,8 @@ def _frame(
         start, tangent = _point_and_tangent(parent_poly, frac)
         if br.parent >= 0:
             base_dir = _lateral_direction(tangent, br.spread, br.side)
-        pts = _branch_points(br, start, base_dir, float(length[i]), maturity, plant.kind.droop_pow)
-        # scanner-like noise, weaker on tiny organs so they are not crumpled
-        pts = pts + _smooth_noise(rng, len(pts), noise * min(1.0, length[i] / 20.0))
+        jitter = _angle_noise(rng, noise, float(length[i]))
+        pts = _branch_points(br, start, base_dir, float(length[i]), maturity, plant.kind.droop_pow, jitter)
         where[i] = len(polys)
         polys.append(pts)
         parents.append(0 if br.parent < 0 else where[br.parent])
@@ -456,7 +463,7 @@ def synthetic_plant(
     n_frames: int = 10,
     times: Sequence[float] | Tensor | np.ndarray | None = None,
     T: int = DEFAULT_T,
-    noise: float = 0.3,
+    noise: float = 0.5,
     warp_strength: float = 1.0,
     min_length: float = 2.0,
     margin: float = 0.85,
@@ -475,7 +482,7 @@ def synthetic_plant(
             irregular days from the seed (:func:`default_times`). The first and last map to
             normalised times 0 and 1.
         T: points per branch.
-        noise: size (mm) of the smooth per-frame random displacement of each branch; 0 for none.
+        noise: size (mm) of the smooth per-frame random bend of each branch (tip displacement); 0 for none.
         warp_strength: how far the growth clock departs from the identity (0: ``h(t) = t``).
         min_length: a branch appears in a frame once it is at least this long (mm).
         margin: side branches stay below this fraction of the rest of their parent (longest-path rule).
