@@ -35,7 +35,7 @@ from .curves import (
     warp_curve,
     warp_srvf,
 )
-from .rotation import check_rotation_mode, optimal_rotation
+from .rotation import axis_rotation, check_rotation_mode, optimal_rotation
 
 try:  # numba is optional: without it the torch backend is used everywhere
     import numba
@@ -162,6 +162,9 @@ def _step_arrays(n: int) -> tuple[np.ndarray, np.ndarray]:
 
 # ----------------------------------------------------------------------------- numba backend
 
+# halvings of the pattern search of one warp node in the refinement (final step = interval / 2^(steps+1))
+REFINE_STEPS = 8
+
 if HAVE_NUMBA:
 
     @numba.njit(cache=True, boundscheck=False)
@@ -216,10 +219,11 @@ if HAVE_NUMBA:
                         P0[c, t] = P1[c, t]
 
     @numba.njit(cache=True, boundscheck=False)
-    def _nb_dp_one(q1: np.ndarray, beta2: np.ndarray, A: np.ndarray, Bs: np.ndarray, lo: np.ndarray,
-                   hi: np.ndarray, gamma: np.ndarray) -> float:
-        """DP for one pair; writes ``gamma (M+1,)`` and returns the energy (inf if the band has no path)."""
-        M, d = q1.shape
+    def _nb_make_tables(beta2: np.ndarray, A: np.ndarray,
+                        Bs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Edge tables ``(QW, SS, off)`` of the moving curve ``beta2 (M+1, d)`` (see ``_nb_tables``)."""
+        M = beta2.shape[0] - 1
+        d = beta2.shape[1]
         S = A.shape[0]
         off = np.zeros(S + 1, np.int64)
         for s in range(S):
@@ -227,6 +231,21 @@ if HAVE_NUMBA:
         QW = np.zeros((off[S], d, M + 1))
         SS = np.zeros((S, M + 1))
         _nb_tables(np.ascontiguousarray(beta2.T), A, Bs, off, QW, SS)
+        return QW, SS, off
+
+    @numba.njit(cache=True, boundscheck=False)
+    def _nb_dp_one(q1: np.ndarray, beta2: np.ndarray, A: np.ndarray, Bs: np.ndarray, lo: np.ndarray,
+                   hi: np.ndarray, gamma: np.ndarray) -> float:
+        """DP for one pair; writes ``gamma (M+1,)`` and returns the energy (inf if the band has no path)."""
+        QW, SS, off = _nb_make_tables(beta2, A, Bs)
+        return _nb_dp_tab(q1, QW, SS, off, A, Bs, lo, hi, gamma)
+
+    @numba.njit(cache=True, boundscheck=False)
+    def _nb_dp_tab(q1: np.ndarray, QW: np.ndarray, SS: np.ndarray, off: np.ndarray, A: np.ndarray,
+                   Bs: np.ndarray, lo: np.ndarray, hi: np.ndarray, gamma: np.ndarray) -> float:
+        """The DP proper, given the moving curve's edge tables; rows ``i`` restricted to ``[lo_i, hi_i]``."""
+        M, d = q1.shape
+        S = A.shape[0]
         E = np.full((M + 1, M + 1), np.inf)
         arg = np.zeros((M + 1, M + 1), np.int8)
         E[0, 0] = 0.0
@@ -393,57 +412,108 @@ if HAVE_NUMBA:
         return beta
 
     @numba.njit(cache=True, boundscheck=False)
-    def _nb_dp_search(q1: np.ndarray, beta2: np.ndarray, A: np.ndarray, Bs: np.ndarray, n: int, band: int,
-                      coarse: int, init: np.ndarray, gamma: np.ndarray) -> float:
-        """Full (band < 0), banded around ``init`` (if it has M+1 entries) or coarse-to-fine DP."""
-        M, d = q1.shape
+    def _nb_dp_search(q1: np.ndarray, QW: np.ndarray, SS: np.ndarray, off: np.ndarray, A: np.ndarray,
+                      Bs: np.ndarray, n: int, band: int, init: np.ndarray, gamma: np.ndarray) -> float:
+        """Full DP (``band < 0`` or no ``init``) or DP in a band around ``init (M+1,)``."""
+        M = q1.shape[0]
         lo = np.empty(M + 1, np.int64)
         hi = np.empty(M + 1, np.int64)
-        if band < 0 or (init.shape[0] != M + 1 and M <= coarse):
+        if band < 0 or init.shape[0] != M + 1:
             for i in range(M + 1):
                 lo[i] = max(-(-i // n), M - n * (M - i))
                 hi[i] = min(n * i, M - (-(-(M - i) // n)))
-            return _nb_dp_one(q1, beta2, A, Bs, lo, hi, gamma)
-        if init.shape[0] == M + 1:
-            center = init
         else:
-            Mc = max(coarse, (M + 1) // 2)
-            if Mc >= M:
-                Mc = M // 2
-            b1c = _nb_resample(np.ascontiguousarray(_nb_inverse_from(q1)), Mc + 1)
-            q1c = np.empty((Mc, d))
-            _nb_srvf(b1c, q1c)
-            b2c = _nb_resample(beta2, Mc + 1)
-            gc = np.empty(Mc + 1)
-            _nb_dp_search(q1c, b2c, A, Bs, n, band, coarse, np.empty(0), gc)
-            center = np.empty(M + 1)
-            _nb_interp(gc.reshape(Mc + 1, 1), np.linspace(0.0, 1.0, M + 1), center.reshape(M + 1, 1))
-        _nb_band(center, M, n, band, lo, hi)
-        return _nb_dp_one(q1, beta2, A, Bs, lo, hi, gamma)
+            _nb_band(init, M, n, band, lo, hi)
+        return _nb_dp_tab(q1, QW, SS, off, A, Bs, lo, hi, gamma)
 
     @numba.njit(cache=True, boundscheck=False)
-    def _nb_register_one(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, Bs: np.ndarray, n: int, band: int,
-                         coarse: int, mode: int, up: np.ndarray, max_iters: int, tol: float,
-                         gamma: np.ndarray, O: np.ndarray) -> tuple[float, float]:
-        """Alternate the optimal rotation and the DP warp for one pair; returns (energy, identity energy).
+    def _nb_at(beta2: np.ndarray, x: float, out: np.ndarray) -> None:
+        """``beta2`` at parameter ``x`` (as curves.interpolate_curve)."""
+        M = beta2.shape[0] - 1
+        y = min(max(x, 0.0), 1.0) * M
+        f = min(math.floor(y), M - 1)
+        r = y - f
+        for c in range(beta2.shape[1]):
+            out[c] = beta2[f, c] + r * (beta2[f + 1, c] - beta2[f, c])
 
-        Writes the best ``gamma (M+1,)`` and ``O (d, d)`` seen; the identity pair is the first candidate.
+    @numba.njit(cache=True, boundscheck=False)
+    def _nb_seg(q1: np.ndarray, m: int, p0: np.ndarray, p1: np.ndarray) -> float:
+        """``M |q1_m - q|^2`` with ``q`` the SRVF of the segment from point ``p0`` to ``p1``."""
+        M, d = q1.shape
+        nv = 0.0
+        for c in range(d):
+            v = (p1[c] - p0[c]) * M
+            nv += v * v
+        sc = M / math.sqrt(math.sqrt(nv)) if nv > 0 else 0.0
+        e = 0.0
+        for c in range(d):
+            x = q1[m, c] - (p1[c] - p0[c]) * sc
+            e += x * x
+        return e
+
+    @numba.njit(cache=True, boundscheck=False)
+    def _nb_refine(q1: np.ndarray, beta2: np.ndarray, gamma: np.ndarray, sweeps: int, steps: int) -> None:
+        """Lower the energy by moving single warp nodes inside their neighbours' interval (red-black sweeps).
+
+        Each node does a pattern search of ``steps`` halvings and only accepts improvements, so the
+        warp stays monotone with fixed ends and the energy never increases.
         """
         M, d = q1.shape
-        beta2 = _nb_inverse_from(q2)
-        ident = np.linspace(0.0, 1.0, M + 1)
+        pa = np.empty(d)
+        pb = np.empty(d)
+        px = np.empty(d)
+        for _ in range(sweeps):
+            for parity in range(1, 3):
+                for m in range(parity, M, 2):
+                    a = gamma[m - 1]
+                    b = gamma[m + 1]
+                    cur = gamma[m]
+                    _nb_at(beta2, a, pa)
+                    _nb_at(beta2, b, pb)
+                    _nb_at(beta2, cur, px)
+                    fcur = _nb_seg(q1, m - 1, pa, px) + _nb_seg(q1, m, px, pb)
+                    delta = 0.25 * (b - a)
+                    for _ in range(steps):
+                        best = cur
+                        fbest = fcur
+                        for sign in (-1.0, 1.0):
+                            x = cur + sign * delta
+                            if a <= x <= b:
+                                _nb_at(beta2, x, px)
+                                f = _nb_seg(q1, m - 1, pa, px) + _nb_seg(q1, m, px, pb)
+                                if f < fbest:
+                                    best = x
+                                    fbest = f
+                        cur = best
+                        fcur = fbest
+                        delta *= 0.5
+                    gamma[m] = cur
+
+    @numba.njit(cache=True, boundscheck=False)
+    def _nb_alternate(q1: np.ndarray, beta2: np.ndarray, A: np.ndarray, Bs: np.ndarray, n: int, band: int,
+                      mode: int, up: np.ndarray, max_iters: int, tol: float, refine: int, O0: np.ndarray,
+                      init: np.ndarray, gamma: np.ndarray, O: np.ndarray) -> float:
+        """Alternate DP warps and optimal rotations on one grid, from rotation ``O0`` (and warp ``init``).
+
+        Writes the best ``gamma`` and ``O`` seen and returns their energy. The DP runs on ``(q1 O, q2)``
+        (the same energy as ``(q1, O q2)``) so the tables of ``q2`` are built once.
+        """
+        M, d = q1.shape
+        QW, SS, off = _nb_make_tables(beta2, A, Bs)
         eye = np.eye(d)
-        e_before = _nb_energy(q1, beta2, ident, eye)
-        best = e_before
-        gamma[:] = ident
-        O[:, :] = eye
-        Ocur = eye.copy() if mode == 0 else _nb_rotation(q1, beta2, ident, mode, up)
+        best = np.inf
+        Ocur = O0.copy()
+        prev = init
         g = np.empty(M + 1)
-        prev = np.empty(0)
         last = np.inf
-        for it in range(max(max_iters, 1)):
-            b2r = np.ascontiguousarray(beta2 @ Ocur.T)
-            e = _nb_dp_search(q1, b2r, A, Bs, n, band, coarse, prev, g)
+        for _ in range(max(max_iters, 1)):
+            q1r = np.ascontiguousarray(q1 @ Ocur)
+            e = _nb_dp_search(q1r, QW, SS, off, A, Bs, n, band, prev, g)
+            if refine > 0:
+                if prev.shape[0] == M + 1 and _nb_energy(q1r, beta2, prev, eye) < e:
+                    g[:] = prev  # the band search lost to the warp it started from
+                _nb_refine(q1r, beta2, g, refine, REFINE_STEPS)
+                e = _nb_energy(q1r, beta2, g, eye)
             if e < best:
                 best = e
                 gamma[:] = g
@@ -456,16 +526,111 @@ if HAVE_NUMBA:
                 best = e2
                 gamma[:] = g
                 O[:, :] = Onew
-            if not last - e2 > tol * max(last, 1e-300):
+            if not last - e2 > tol * e2:  # relative decrease (last = inf on the first round)
                 break
             last = e2
             Ocur = Onew
             prev = g.copy()
+        return best
+
+    @numba.njit(cache=True, boundscheck=False)
+    def _nb_start_rotation(O: np.ndarray, mode: int, up: np.ndarray, k: int, starts: int) -> np.ndarray:
+        """Start ``k`` of ``starts``: ``O`` itself, then ``O`` turned about ``up`` (vertical) or by a flip of
+        two axes (so3: half-turns about the coordinate axes)."""
+        d = O.shape[0]
+        if k == 0:
+            return O.copy()
+        if mode == 1:
+            th = 2.0 * math.pi * k / starts
+            u = up / math.sqrt((up * up).sum())
+            K = np.zeros((3, 3))
+            K[0, 1], K[0, 2], K[1, 2] = -u[2], u[1], -u[0]
+            K[1, 0], K[2, 0], K[2, 1] = u[2], -u[1], u[0]
+            uu = np.outer(u, u)
+            return O @ (uu + math.cos(th) * (np.eye(3) - uu) + math.sin(th) * K)
+        F = np.eye(d)
+        i = (k - 1) % d
+        F[i, i] = -1.0
+        F[(i + 1) % d, (i + 1) % d] = -1.0
+        return O @ F
+
+    @numba.njit(cache=True, boundscheck=False)
+    def _nb_register_one(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, Bs: np.ndarray, Af: np.ndarray,
+                         Bf: np.ndarray, cfg: np.ndarray, up: np.ndarray, tol: float, gamma: np.ndarray,
+                         O: np.ndarray) -> tuple[float, float]:
+        """Coarse-to-fine registration of one pair; returns (energy, identity energy).
+
+        ``cfg = [n, band, coarse, mode, max_iters, refine, starts, n_fine, fine_iters]``. The coarsest grid
+        (at most ``coarse`` segments, full DP with steps ``A, Bs``) runs the rotation / warp alternation
+        from ``starts`` initial rotations for up to ``max_iters`` rounds; each finer grid (up to 3 times
+        as fine) continues from the best for up to ``fine_iters`` rounds in a band (steps ``Af, Bf``);
+        the local refinement runs on the finest grid only. The identity (warp, rotation) is the first
+        candidate, so the energy never exceeds the identity's.
+        """
+        n, band, coarse, mode, max_iters, refine, starts, nf, fine_iters = (
+            cfg[0], cfg[1], cfg[2], cfg[3], cfg[4], cfg[5], cfg[6], cfg[7], cfg[8])
+        M, d = q1.shape
+        beta1 = _nb_inverse_from(q1)
+        beta2 = _nb_inverse_from(q2)
+        eye = np.eye(d)
+        ident = np.linspace(0.0, 1.0, M + 1)
+        e_before = _nb_energy(q1, beta2, ident, eye)
+        best = e_before
+        gamma[:] = ident
+        O[:, :] = eye
+        sizes = np.empty(64, np.int64)
+        L = 1
+        sizes[0] = M
+        if band >= 0:
+            while sizes[L - 1] > coarse and L < 64:
+                cur = sizes[L - 1]
+                sizes[L] = min(max(coarse // 2, -(-cur // 3)), cur - 1)
+                L += 1
+        Ocur = eye.copy() if mode == 0 else _nb_rotation(q1, beta2, ident, mode, up)
+        gcur = np.empty(0)
+        for lev in range(L - 1, -1, -1):
+            ML = sizes[lev]
+            if ML == M:
+                q1L = q1
+                b2L = beta2
+            else:
+                q1L = np.empty((ML, d))
+                _nb_srvf(_nb_resample(beta1, ML + 1), q1L)
+                b2L = _nb_resample(beta2, ML + 1)
+            init = np.empty(0)
+            if gcur.shape[0] > 0:
+                init = np.empty(ML + 1)
+                _nb_interp(gcur.reshape(-1, 1), np.linspace(0.0, 1.0, ML + 1), init.reshape(-1, 1))
+            gL = np.empty(ML + 1)
+            OL = np.empty((d, d))
+            top = lev == L - 1
+            nst = starts if (top and mode != 0) else 1
+            eL = np.inf
+            gk = np.empty(ML + 1)
+            Ok = np.empty((d, d))
+            for k in range(max(nst, 1)):
+                O0 = _nb_start_rotation(Ocur, mode, up, k, nst)
+                if top:
+                    ek = _nb_alternate(q1L, b2L, A, Bs, n, band, mode, up, max_iters, tol,
+                                       refine if lev == 0 else 0, O0, init, gk, Ok)
+                else:
+                    ek = _nb_alternate(q1L, b2L, Af, Bf, nf, band, mode, up, fine_iters, tol,
+                                       refine if lev == 0 else 0, O0, init, gk, Ok)
+                if ek < eL:
+                    eL = ek
+                    gL[:] = gk
+                    OL[:, :] = Ok
+            gcur = gL
+            Ocur = OL
+            if lev == 0 and eL < best:
+                best = eL
+                gamma[:] = gL
+                O[:, :] = OL
         return best, e_before
 
     @numba.njit(cache=True, parallel=True, boundscheck=False)
-    def _nb_register_batch(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, Bs: np.ndarray, n: int, band: int,
-                           coarse: int, mode: int, up: np.ndarray, max_iters: int,
+    def _nb_register_batch(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, Bs: np.ndarray, Af: np.ndarray,
+                           Bf: np.ndarray, cfg: np.ndarray, up: np.ndarray,
                            tol: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         Bn, M, d = q1.shape
         energy = np.empty(Bn)
@@ -473,13 +638,12 @@ if HAVE_NUMBA:
         gamma = np.empty((Bn, M + 1))
         O = np.empty((Bn, d, d))
         for p in numba.prange(Bn):
-            energy[p], before[p] = _nb_register_one(q1[p], q2[p], A, Bs, n, band, coarse, mode, up, max_iters,
-                                                    tol, gamma[p], O[p])
+            energy[p], before[p] = _nb_register_one(q1[p], q2[p], A, Bs, Af, Bf, cfg, up, tol, gamma[p], O[p])
         return energy, before, gamma, O
 
     @numba.njit(cache=True, boundscheck=False)
-    def _nb_register_serial(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, Bs: np.ndarray, n: int, band: int,
-                            coarse: int, mode: int, up: np.ndarray, max_iters: int,
+    def _nb_register_serial(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, Bs: np.ndarray, Af: np.ndarray,
+                            Bf: np.ndarray, cfg: np.ndarray, up: np.ndarray,
                             tol: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         Bn, M, d = q1.shape
         energy = np.empty(Bn)
@@ -487,8 +651,7 @@ if HAVE_NUMBA:
         gamma = np.empty((Bn, M + 1))
         O = np.empty((Bn, d, d))
         for p in range(Bn):
-            energy[p], before[p] = _nb_register_one(q1[p], q2[p], A, Bs, n, band, coarse, mode, up, max_iters,
-                                                    tol, gamma[p], O[p])
+            energy[p], before[p] = _nb_register_one(q1[p], q2[p], A, Bs, Af, Bf, cfg, up, tol, gamma[p], O[p])
         return energy, before, gamma, O
 
     @numba.njit(cache=True, parallel=True, boundscheck=False)
@@ -677,42 +840,108 @@ def _run_dp(q1: Tensor, q2: Tensor, n: int, lo: np.ndarray, hi: np.ndarray, back
     return _dp_torch(q1, q2, n, lo, hi)
 
 
-def _dp_levels(q1: Tensor, q2: Tensor, n: int, band: int | None, coarse: int | None, init: Tensor | None,
+def _dp_search(q1: Tensor, q2: Tensor, n: int, band: int | None, init: Tensor | None,
                backend: str) -> tuple[Tensor, Tensor]:
-    """Full (``band=None``), banded around ``init`` or coarse-to-fine DP (mirrors ``_nb_dp_search``)."""
+    """Full DP (``band=None`` or no ``init``) or DP in a band around ``init (B, M+1)``. ``-> gamma, energy``."""
     B, M, _ = q1.shape
-    if band is None or (init is None and (coarse is None or M <= coarse)):
+    if band is None or init is None:
         lo, hi = _reachable_band(M, n)
-        energy, gamma = _run_dp(q1, q2, n, np.tile(lo, (B, 1)), np.tile(hi, (B, 1)), backend)
-        return gamma, energy
-    if init is not None:
-        center = init
+        lo, hi = np.tile(lo, (B, 1)), np.tile(hi, (B, 1))
     else:
-        assert coarse is not None
-        Mc = max(coarse, (M + 1) // 2)
-        if Mc >= M:
-            Mc = M // 2
-        gc, _ = _dp_levels(_resample_srvf(q1, Mc), _resample_srvf(q2, Mc), n, band, coarse, None, backend)
-        center = interpolate_curve(gc.unsqueeze(-1), uniform_grid(M + 1, q1).expand(B, M + 1))[..., 0]
-    lo, hi = _band_around(center, M, n, band)
+        lo, hi = _band_around(init, M, n, band)
     energy, gamma = _run_dp(q1, q2, n, lo, hi, backend)
     return gamma, energy
+
+
+def _grid_sizes(M: int, band: int | None, coarse: int | None) -> list[int]:
+    """Grids of the coarse-to-fine search, finest first (as in ``_nb_register_one``)."""
+    sizes = [M]
+    if band is not None and coarse is not None:
+        while sizes[-1] > coarse and len(sizes) < 64:
+            cur = sizes[-1]
+            sizes.append(min(max(coarse // 2, -(-cur // 3)), cur - 1))
+    return sizes
+
+
+class _Settings(NamedTuple):
+    """Search settings shared by both backends (see :func:`register_curves`)."""
+
+    neighbourhood: int
+    band: int | None
+    coarse: int | None
+    band_neighbourhood: int
+    max_iters: int
+    fine_iters: int
+    tol: float
+    refine: int
+    starts: int
+
+
+def _seg_cost(q1: Tensor, beta2: Tensor, m: Tensor, x0: Tensor, x1: Tensor) -> Tensor:
+    """Torch twin of ``_nb_seg_cost`` for nodes ``m (n,)`` and parameters ``x0, x1 (B, n)``. ``-> (B, n)``."""
+    M = q1.shape[1]
+    p0 = interpolate_curve(beta2, x0)
+    p1 = interpolate_curve(beta2, x1)
+    dp = p1 - p0
+    nv = ((dp * M) ** 2).sum(-1, keepdim=True)
+    sc = torch.where(nv > 0, M / nv.clamp_min(1e-300).sqrt().sqrt(), 0.0)
+    return ((q1[:, m] - dp * sc) ** 2).sum(-1)
+
+
+def _refine_torch(q1: Tensor, beta2: Tensor, gamma: Tensor, sweeps: int, steps: int) -> Tensor:
+    """Torch twin of ``_nb_refine`` (same red-black order, vectorised over pairs and nodes)."""
+    M = q1.shape[1]
+    gamma = gamma.clone()
+    for _ in range(sweeps):
+        for parity in (1, 2):
+            idx = torch.arange(parity, M, 2, device=q1.device)
+            if len(idx) == 0:
+                continue
+            a, b, cur = gamma[:, idx - 1], gamma[:, idx + 1], gamma[:, idx]
+            fcur = _seg_cost(q1, beta2, idx - 1, a, cur) + _seg_cost(q1, beta2, idx, cur, b)
+            delta = 0.25 * (b - a)
+            for _it in range(steps):
+                best, fbest = cur, fcur
+                for sign in (-1.0, 1.0):
+                    x = cur + sign * delta
+                    f = _seg_cost(q1, beta2, idx - 1, a, x) + _seg_cost(q1, beta2, idx, x, b)
+                    better = (a <= x) & (x <= b) & (f < fbest)
+                    best, fbest = torch.where(better, x, best), torch.where(better, f, fbest)
+                cur, fcur = best, fbest
+                delta = delta * 0.5
+            gamma[:, idx] = cur
+    return gamma
 
 
 _MODES = {"none": 0, "vertical": 1, "so3": 2}
 
 
-def _register_torch(q1: Tensor, q2: Tensor, n: int, band: int | None, coarse: int | None, rotation: str,
-                    up: Tensor, max_iters: int, tol: float) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-    """Batched torch twin of ``_nb_register_one``. ``-> energy, energy_before, gamma, O``."""
+def _start_rotation(O: Tensor, rotation: str, up: Tensor, k: int, starts: int) -> Tensor:
+    """Torch twin of ``_nb_start_rotation``."""
+    d = O.shape[-1]
+    if k == 0:
+        return O.clone()
+    if rotation == "vertical":
+        th = torch.full(O.shape[:1], 2.0 * math.pi * k / starts, dtype=O.dtype, device=O.device)
+        return O @ axis_rotation(up.to(O.dtype), th)
+    F = torch.eye(d, dtype=O.dtype, device=O.device)
+    i = (k - 1) % d
+    F[i, i] = -1.0
+    F[(i + 1) % d, (i + 1) % d] = -1.0
+    return O @ F
+
+
+def _alternate_torch(q1: Tensor, q2: Tensor, n: int, band: int | None, rotation: str, up: Tensor,
+                     max_iters: int, tol: float, refine: int, O0: Tensor,
+                     init: Tensor | None) -> tuple[Tensor, Tensor, Tensor]:
+    """Batched torch twin of ``_nb_alternate``. ``-> energy (B,), gamma (B, M+1), O (B, d, d)``."""
     B, M, d = q1.shape
-    ident = identity_warp(B, M + 1, q1)
-    eye = torch.eye(d, dtype=q1.dtype, device=q1.device).expand(B, d, d).clone()
-    before = warp_energy(q1, q2, ident)
-    best, gamma, O = before.clone(), ident.clone(), eye.clone()
-    Ocur = eye if rotation == "none" else optimal_rotation(q1, q2, rotation, up)
-    prev: Tensor | None = None
-    last = torch.full_like(before, float("inf"))
+    beta2 = inverse_srvf(q2)
+    best = torch.full((B,), float("inf"), dtype=q1.dtype, device=q1.device)
+    gamma = identity_warp(B, M + 1, q1)
+    O = O0.clone()
+    Ocur, prev = O0, init
+    last = torch.full_like(best, float("inf"))
     active = torch.ones(B, dtype=torch.bool, device=q1.device)
 
     def keep(e: Tensor, g: Tensor, R: Tensor) -> None:
@@ -723,32 +952,79 @@ def _register_torch(q1: Tensor, q2: Tensor, n: int, band: int | None, coarse: in
         O = torch.where(better[:, None, None], R, O)
 
     for _ in range(max(max_iters, 1)):
-        g, e = _dp_levels(q1, q2 @ Ocur.transpose(-1, -2), n, band, coarse, prev, "torch")
+        q1r = q1 @ Ocur
+        g, e = _dp_search(q1r, q2, n, band, prev, "torch")
+        if refine > 0:
+            if prev is not None:
+                g = torch.where((warp_energy(q1r, q2, prev) < e)[:, None], prev, g)
+            g = _refine_torch(q1r, beta2, g, refine, REFINE_STEPS)
+            e = warp_energy(q1r, q2, g)
         keep(e, g, Ocur)
         if rotation == "none":
             break
         Onew = optimal_rotation(q1, warp_srvf(q2, g), rotation, up)
         e2 = warp_energy(q1, q2, g, Onew)
         keep(e2, g, Onew)
-        active = active & (last - e2 > tol * last.clamp_min(1e-300))
+        active = active & (last - e2 > tol * e2)
         if not bool(active.any()):
             break
         last = torch.where(active, e2, last)
         Ocur = torch.where(active[:, None, None], Onew, Ocur)
         prev = g if prev is None else torch.where(active[:, None], g, prev)
-    return best, before, gamma, O
+    return best, gamma, O
 
 
-def _register_numba(q1: Tensor, q2: Tensor, n: int, band: int | None, coarse: int | None, rotation: str,
-                    up: Tensor, max_iters: int, tol: float) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-    A, Bs = _step_arrays(n)
+def _register_torch(q1: Tensor, q2: Tensor, rotation: str, up: Tensor,
+                    cfg: _Settings) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """Batched torch twin of ``_nb_register_one``. ``-> energy, energy_before, gamma, O``."""
+    B, M, d = q1.shape
+    ident = identity_warp(B, M + 1, q1)
+    eye = torch.eye(d, dtype=q1.dtype, device=q1.device).expand(B, d, d).clone()
+    before = warp_energy(q1, q2, ident)
+    beta1, beta2 = inverse_srvf(q1), inverse_srvf(q2)
+    Ocur = eye if rotation == "none" else optimal_rotation(q1, q2, rotation, up)
+    gcur: Tensor | None = None
+    sizes = _grid_sizes(M, cfg.band, cfg.coarse)
+    eL = before
+    for lev in range(len(sizes) - 1, -1, -1):
+        ML = sizes[lev]
+        q1L = q1 if ML == M else srvf(_resample_curve(beta1, ML + 1))
+        q2L = q2 if ML == M else srvf(_resample_curve(beta2, ML + 1))
+        init = None if gcur is None else _resample_curve(gcur.unsqueeze(-1), ML + 1)[..., 0]
+        top = lev == len(sizes) - 1
+        nst = cfg.starts if (top and rotation != "none") else 1
+        eL = torch.full((B,), float("inf"), dtype=q1.dtype, device=q1.device)
+        gL, OL = identity_warp(B, ML + 1, q1), eye.clone()
+        for k in range(max(nst, 1)):
+            O0 = _start_rotation(Ocur, rotation, up, k, nst)
+            ek, gk, Ok = _alternate_torch(q1L, q2L, cfg.neighbourhood if top else cfg.band_neighbourhood,
+                                          cfg.band, rotation, up, cfg.max_iters if top else cfg.fine_iters,
+                                          cfg.tol, cfg.refine if lev == 0 else 0, O0, init)
+            better = ek < eL
+            eL = torch.where(better, ek, eL)
+            gL = torch.where(better[:, None], gk, gL)
+            OL = torch.where(better[:, None, None], Ok, OL)
+        gcur, Ocur = gL, OL
+    better = eL < before
+    energy = torch.where(better, eL, before)
+    gamma = torch.where(better[:, None], gcur, ident)
+    O = torch.where(better[:, None, None], Ocur, eye)
+    return energy, before, gamma, O
+
+
+def _register_numba(q1: Tensor, q2: Tensor, rotation: str, up: Tensor,
+                    cfg: _Settings) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    A, Bs = _step_arrays(cfg.neighbourhood)
+    Af, Bf = _step_arrays(cfg.band_neighbourhood)
+    ints = np.array([cfg.neighbourhood, -1 if cfg.band is None else cfg.band,
+                     1 << 30 if cfg.coarse is None else cfg.coarse, _MODES[rotation], cfg.max_iters, cfg.refine,
+                     cfg.starts, cfg.band_neighbourhood, cfg.fine_iters], np.int64)
     q1n = q1.detach().to("cpu", torch.float64).contiguous().numpy()
     q2n = q2.detach().to("cpu", torch.float64).contiguous().numpy()
     upn = up.detach().to("cpu", torch.float64).contiguous().numpy()
     kernel = _nb_register_batch if len(q1n) >= PARALLEL_MIN_PAIRS and numba.get_num_threads() > 1 \
         else _nb_register_serial
-    out = kernel(q1n, q2n, A, Bs, n, -1 if band is None else band, 1 << 30 if coarse is None else coarse,
-                 _MODES[rotation], upn, max_iters, tol)
+    out = kernel(q1n, q2n, A, Bs, Af, Bf, ints, upn, float(cfg.tol))
     return tuple(torch.from_numpy(x).to(q1.device, q1.dtype) for x in out)  # type: ignore[return-value]
 
 
@@ -778,63 +1054,87 @@ def _check_inputs(moving: Tensor, reference: Tensor, min_points: int, what: str)
     return moving, reference.to(moving.dtype), single
 
 
-def dp_warp(q1: Tensor, q2: Tensor, neighbourhood: int = 6, band: int | None = 6, coarse: int | None = 32,
-            backend: str = "auto") -> DPWarp:
+def _settings(neighbourhood: int, band: int | None, coarse: int | None, band_neighbourhood: int | None,
+              max_iters: int, fine_iters: int, tol: float, refine: int, starts: int) -> _Settings:
+    for name, v, low in (("neighbourhood", neighbourhood, 1), ("max_iters", max_iters, 1),
+                         ("fine_iters", fine_iters, 1), ("refine", refine, 0), ("starts", starts, 1)):
+        if not isinstance(v, int) or v < low:
+            raise ValueError(f"{name} must be an integer >= {low}, got {v!r}")
+    if band is not None and (not isinstance(band, int) or band < 1):
+        raise ValueError(f"band must be None or an integer >= 1, got {band!r}")
+    if coarse is not None and (not isinstance(coarse, int) or coarse < 2):
+        raise ValueError(f"coarse must be None or an integer >= 2, got {coarse!r}")
+    nf = neighbourhood if band_neighbourhood is None else band_neighbourhood
+    if not isinstance(nf, int) or nf < 1:
+        raise ValueError(f"band_neighbourhood must be None or an integer >= 1, got {band_neighbourhood!r}")
+    return _Settings(neighbourhood, band, coarse, nf, max_iters, fine_iters, float(tol), refine, starts)
+
+
+def dp_warp(q1: Tensor, q2: Tensor, neighbourhood: int = 6, band: int | None = 6, coarse: int | None = 40,
+            band_neighbourhood: int | None = None, refine: int = 0, backend: str = "auto") -> DPWarp:
     """Optimal warps of ``q2`` onto ``q1`` by dynamic programming (no rotation).
 
     Args:
         q1: ``(B, M, d)`` reference SRVFs (or ``(M, d)`` for one pair).
         q2: ``(B, M2, d)`` moving SRVFs; resampled (through their curves) to ``M`` segments if ``M2 != M``.
         neighbourhood: allowed steps are the coprime ``(a, b)`` with ``1 <= a, b <= neighbourhood``.
-        band: half-width (in grid cells) of the band searched around the coarse solution; ``None``
-            searches the whole lattice (the exact optimum over all lattice warps).
-        coarse: grids finer than this many segments are first solved on a grid half as fine
-            (recursively), then refined in the band.
-        backend: ``"numba"`` (CPU), ``"torch"`` (any device) or ``"auto"``.
+        band: with ``M > coarse``, the DP first runs on a grid of about ``M / 3`` segments (recursively
+            until at most ``coarse``), then on the fine grid only within ``band`` cells of the coarse
+            warp. ``None``: one DP over the whole lattice (its exact optimum over all lattice warps).
+        band_neighbourhood: steps of the banded (finer) DPs; default ``neighbourhood``.
+        refine: sweeps of a local search that moves warp nodes off the lattice (0 = pure DP);
+            it only accepts improvements, so the warp stays monotone and the energy only decreases.
+        backend: ``"numba"`` (CPU), ``"torch"`` (any device) or ``"auto"`` (numba for CPU tensors).
 
     Returns:
         ``DPWarp(gamma (B, M+1), energy (B,))`` with ``energy = ||q1 - warp_srvf(q2, gamma)||^2``,
         never above the identity warp's energy.
     """
     q2, q1, single = _check_inputs(q2, q1, 1, "SRVFs")
+    cfg = _settings(neighbourhood, band, coarse, band_neighbourhood, 1, 1, 0.0, refine, 1)
     q2 = _resample_srvf(q2, q1.shape[1])
     be = _pick_backend(backend, q1)
-    up = torch.tensor([0.0, 0.0, 1.0])
+    up = torch.tensor([0.0, 0.0, 1.0], dtype=q1.dtype, device=q1.device)
     fn = _register_numba if be == "numba" else _register_torch
     with torch.no_grad():
-        energy, _, gamma, _ = fn(q1, q2, neighbourhood, band, coarse, "none", up, 1, 0.0)
+        energy, _, gamma, _ = fn(q1.detach(), q2.detach(), "none", up, cfg)
     if single:
         gamma, energy = gamma[0], energy[0]
     return DPWarp(gamma, energy)
 
 
 def register_curves(moving: Tensor, reference: Tensor, rotation: str = "none", srvf_input: bool = False,
-                    neighbourhood: int = 6, band: int | None = 6, coarse: int | None = 32,
-                    up: Tensor | tuple[float, float, float] | None = None, max_iters: int = 10,
-                    tol: float = 1e-6, backend: str = "auto") -> CurveRegistration:
+                    neighbourhood: int = 6, band: int | None = 6, coarse: int | None = 40,
+                    band_neighbourhood: int | None = None,
+                    up: Tensor | tuple[float, float, float] | None = None, max_iters: int = 20,
+                    fine_iters: int = 3, tol: float = 1e-6, refine: int = 4, starts: int = 1,
+                    backend: str = "auto") -> CurveRegistration:
     """Elastic registration of ``moving`` onto ``reference``: ``min_{gamma, O} ||q_ref - O (q_mov o gamma)||``.
 
     Args:
         moving: ``(B, T2, d)`` curves (``(B, T2-1, d)`` SRVFs if ``srvf_input``), or one pair unbatched.
-        reference: ``(B, T, d)`` curves (or SRVFs). ``moving`` is resampled to ``T`` points if needed.
+        reference: ``(B, T, d)`` curves (or SRVFs). ``moving`` is resampled to ``T`` points if needed
+            (linearly in its parameter).
         rotation: ``"none"``, ``"vertical"`` (about ``up``, default z; d = 3) or ``"so3"``.
         srvf_input: inputs are SRVFs (curves then start at the origin).
-        neighbourhood, band, coarse, backend: DP settings, see :func:`dp_warp`.
+        neighbourhood, band, coarse, band_neighbourhood, refine, backend: DP settings, see :func:`dp_warp`.
         up: the vertical axis for ``rotation="vertical"``.
-        max_iters: rounds of (DP warp, optimal rotation); stops early when the energy stops
-            decreasing by more than ``tol`` relatively.
+        max_iters: rounds of (DP warp, optimal rotation) on the coarsest grid; ``fine_iters`` on finer
+            grids. Rounds stop early when the energy decreases by less than ``tol`` relatively.
+        starts: initial rotations tried on the coarsest grid (the Kabsch rotation at the identity warp,
+            then half-turns about the axes (so3) or turns about ``up`` (vertical)); the best is kept.
 
     Returns:
         :class:`CurveRegistration`. Warps and rotations are found without gradients; ``distance``,
         ``registered`` and ``q_registered`` are differentiable in the inputs given them.
     """
-    check_rotation_mode(rotation, moving.shape[-1])
     if srvf_input:
         moving, reference, single = _check_inputs(moving, reference, 1, "SRVFs")
-        beta_m, beta_r = inverse_srvf(moving), inverse_srvf(reference)
     else:
         moving, reference, single = _check_inputs(moving, reference, 2, "curves")
-        beta_m, beta_r = moving, reference
+    check_rotation_mode(rotation, moving.shape[-1])
+    cfg = _settings(neighbourhood, band, coarse, band_neighbourhood, max_iters, fine_iters, tol, refine, starts)
+    beta_m, beta_r = (inverse_srvf(moving), inverse_srvf(reference)) if srvf_input else (moving, reference)
     T = beta_r.shape[1]
     beta_m = _resample_curve(beta_m, T)
     q_ref, q_mov = srvf(beta_r), srvf(beta_m)
@@ -844,8 +1144,7 @@ def register_curves(moving: Tensor, reference: Tensor, rotation: str = "none", s
     be = _pick_backend(backend, q_ref)
     fn = _register_numba if be == "numba" else _register_torch
     with torch.no_grad():
-        _, before, gamma, O = fn(q_ref.detach(), q_mov.detach(), neighbourhood, band, coarse, rotation, up_t,
-                                 max_iters, tol)
+        _, before, gamma, O = fn(q_ref.detach(), q_mov.detach(), rotation, up_t, cfg)
     registered = warp_curve(beta_m, gamma) @ O.transpose(-1, -2)
     registered = registered - registered[:, :1] + beta_r[:, :1]
     q_reg = srvf(registered)
