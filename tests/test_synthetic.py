@@ -28,7 +28,7 @@ KINDS = ("tomato", "maize")
 @pytest.fixture(scope="module")
 def plants():
     """Two plants per kind (module-scoped: generation is the slow part)."""
-    return {kind: synthetic_dataset(kind, 2, seed=11) for kind in KINDS}
+    return {kind: synthetic_dataset(kind, 2, seed=11, n_frames=8) for kind in KINDS}
 
 
 def _labels(frames: Trees) -> list[list[int]]:
