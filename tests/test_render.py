@@ -125,6 +125,20 @@ def test_renders_are_deterministic_and_views_differ():
     assert not np.array_equal(a, render_trees(trees, size=SIZE, view="top"))
 
 
+def test_scale_invariance_and_null_branches():
+    # radii and camera follow the scene's size: a 1 um plant and a 10 m plant look the same
+    tree = four_layer_tree()
+    ref = render_trees(tree, size=SIZE)
+    for factor in (1e-4, 1e3):
+        other = render_trees(tree.with_points(tree.points * factor), size=SIZE)
+        assert (np.abs(other.astype(int) - ref).max(-1) > 24).mean() < 0.002
+    # a null branch (zero length, as in registered trees) is not drawn
+    pts = torch.cat([tree.points, tree.points[1:2, :1].expand(1, tree.T, 3)])
+    padded = Trees(pts, torch.tensor([-1, 0, 1, 2, 1]), torch.cat([tree.s, tree.s[2:3]]), torch.tensor([5]),
+                   torch.full((5,), -1))
+    assert np.array_equal(render_trees(padded, size=SIZE), ref)
+
+
 def test_label_colours_match_for_equal_labels():
     # main label 3; side branch and its sub-branch both label 5; the last branch unlabelled (-1)
     trees = four_layer_tree(labels=[[3, 5, 5, -1]])

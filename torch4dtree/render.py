@@ -579,10 +579,14 @@ def render_grid(
     video: bool = False,
     n_cols: int | None = None,
     n_frames: int | None = None,
+    share_camera: bool = True,
     options: RenderOptions | None = None,
     **overrides: Any,
 ) -> np.ndarray:
     """Several trees / 4D trees side by side (geodesics, modes of variation, samples), one shared camera.
+
+    With ``share_camera`` (default) every cell uses one camera and one tube radius, so sizes
+    compare across rows; ``share_camera=False`` frames each row on its own (still fixed over time).
 
     Image (``video=False``): one row per input, one column per time; ``n_cols`` samples every row
     at that many evenly spaced normalised times (default: each row's frames in order, short rows
@@ -613,10 +617,12 @@ def render_grid(
         which = [list(range(b.num_trees)) for b, _ in batches]
     if col_labels is not None and not video and len(col_labels) != n:
         raise ValueError(f"{len(col_labels)} column labels for {n} columns")
-    framing, r0, rmin = _prepare([b for b, _ in batches], n, opts)
+    if share_camera:
+        shared = _prepare([b for b, _ in batches], n, opts)
     W, H = opts.wh
     cells = []  # per row, (n, H, W, 3)
     for (b, _), w in zip(batches, which):
+        framing, r0, rmin = shared if share_camera else _prepare([b], n, opts)
         frames = _render_frames(_tree_geometry(b, opts, r0, rmin), w, replace(framing, poses=framing.poses[:len(w)]),
                                 opts)
         if len(w) < n:  # a short row: blank cells
@@ -845,7 +851,7 @@ def add_render_arguments(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``torch4dtree render PATH --out FILE``."""
     parser.add_argument("path", type=Path,
                         help="a tree file (.swc, .mat), a sequence folder (frames over time) or a dataset folder "
-                             "(one sequence folder per 4D tree)")
+                             "(one sequence folder per 4D tree, each framed on its own)")
     parser.add_argument("--out", "-o", type=Path, required=True,
                         help="output .png (a tree; a row of frames for a sequence; rows x time for a dataset), "
                              ".gif or .mp4 (a video over time; a turn around the plant for one tree)")
@@ -908,8 +914,9 @@ def run_render(args: argparse.Namespace) -> int:
             loaded = read_dataset(path, load)
             seqs = [ls.sequence for ls in loaded]
             names = [s.name for s in seqs]
+            # one camera per plant: tomatoes and maize differ in size too much to share one
             frames = render_grid(seqs, row_labels=names, title=args.title, video=video, n_frames=args.frames,
-                                 size=cell, **common)
+                                 share_camera=False, size=cell, **common)
         else:
             raise DatasetError(f"{path}: no such file or folder")
         if video:
