@@ -13,6 +13,8 @@ from torch4dtree.data import (
     label_layer,
     label_parts,
     plant_seed,
+    read_ground_truth,
+    relative_warp,
     run_synth,
     sample_growth_warp,
     synthetic_dataset,
@@ -152,10 +154,11 @@ def test_write_read_round_trip(plants, kind, tmp_path):
             pb = dict(zip(lb, fb.points.float()))
             for lab in la:  # same branch, same points (up to float text precision and resampling)
                 assert (pa[lab] - pb[lab]).norm(dim=-1).max() < 0.05, (lab, (pa[lab] - pb[lab]).norm(dim=-1).max())
-    meta = json.loads((out / "dataset.json").read_text())
+    meta = read_ground_truth(out)
     assert meta["kind"] == kind and meta["seed"] == 11 and len(meta["plants"]) == 2
     rec = meta["plants"][0]
-    assert rec["times"] == plants[kind][0].times.tolist()
+    assert rec["times"] == plants[kind][0].times.tolist() and rec["folder"] == f"{kind}_00"
+    assert rec["labels_per_frame"] == plants[kind][0].labels_per_frame()
     assert np.allclose(rec["growth_warp"]["values"], plants[kind][0].growth_warp.numpy())
     # one sequence folder alone reads the same way
     one = read_sequence(out / f"{kind}_01", LoadOptions(labels_from_type=True)).sequence
@@ -215,3 +218,24 @@ def test_given_times_and_bad_arguments():
         synthetic_plant("maize", 0, times=[1.0, 1.0, 2.0])
     with pytest.raises(ValueError):
         synthetic_dataset("maize", 0, seed=0)
+
+
+def test_relative_warp_is_the_developmental_correspondence(plants):
+    a, b = plants["tomato"]
+    t = torch.linspace(0, 1, 33, dtype=torch.float64)
+    xi = relative_warp(a, b, t)
+    assert xi[0] == 0 and xi[-1] == 1 and (torch.diff(xi) > 0).all()
+    assert torch.allclose(b.warp(xi), a.warp(t), atol=1e-12)
+    assert torch.allclose(relative_warp(a, a, t), t, atol=1e-12)
+    assert torch.allclose(a.warp_inverse(a.warp(t)), t, atol=1e-12)
+
+
+def test_read_ground_truth_errors(tmp_path):
+    with pytest.raises(FileNotFoundError):
+        read_ground_truth(tmp_path)
+    (tmp_path / "dataset.json").write_text("{not json")
+    with pytest.raises(ValueError, match="JSON"):
+        read_ground_truth(tmp_path)
+    (tmp_path / "dataset.json").write_text(json.dumps({"format": "other"}))
+    with pytest.raises(ValueError, match="synthetic"):
+        read_ground_truth(tmp_path)

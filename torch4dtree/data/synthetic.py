@@ -443,12 +443,25 @@ class SyntheticPlant:
         """``(n_frames,)`` frame times (calendar, e.g. days)."""
         return self.sequence.times
 
+    def warp_inverse(self, y: Tensor | np.ndarray | float) -> Tensor:
+        """``h^{-1}``: the normalised calendar time at which the plant reaches biological time ``y``."""
+        return evaluate_warp(self.growth_warp, self.growth_grid, y)
+
     def labels_per_frame(self) -> list[list[int]]:
         """Per frame, the sorted branch labels present."""
         f = self.sequence.frames
         ptr = f.ptr.tolist()
         lab = f.label.tolist()
         return [sorted(lab[a:b]) for a, b in zip(ptr[:-1], ptr[1:])]
+
+
+def relative_warp(a: SyntheticPlant, b: SyntheticPlant, t: Tensor | np.ndarray | float) -> Tensor:
+    """The true time warp between two plants: ``xi(t) = h_b^{-1}(h_a(t))`` (float64, shape of ``t``).
+
+    Plant ``b`` at normalised time ``xi(t)`` is as developed as plant ``a`` at ``t``, so a temporal
+    registration that matches ``b``'s trajectory at ``xi(t)`` to ``a``'s at ``t`` should recover it.
+    """
+    return b.warp_inverse(a.warp(t))
 
 
 def default_times(rng: np.random.Generator, n_frames: int) -> np.ndarray:

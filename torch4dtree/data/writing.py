@@ -125,11 +125,31 @@ def write_dataset(plants: Sequence[SyntheticPlant], out_dir: str | Path, overwri
         "units": "mm, z up, root at the origin",
         "label_scheme": LABEL_SCHEME,
         "growth_warp": "biological time = h(normalised calendar time); h piecewise linear on its grid",
-        "settings": plants[0].settings,
+        "settings": {k: v for k, v in plants[0].settings.items() if k != "index"},
         "plants": records,
     }
     write_text_safely(out / DATASET_MANIFEST, json.dumps(meta, indent=1) + "\n", overwrite)
     return out
+
+
+def read_ground_truth(dataset_dir: str | Path) -> dict:
+    """The ``dataset.json`` of a synthetic dataset folder (see :func:`write_dataset`), checked.
+
+    Per plant (``["plants"]``, in folder order): ``folder``, ``seed``, ``times``,
+    ``normalized_times``, ``bio_times``, ``growth_warp`` (``grid``, ``values``), ``labels_per_frame``.
+    """
+    path = Path(dataset_dir) / DATASET_MANIFEST
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no synthetic ground truth here (written by write_dataset / synth)")
+    try:
+        meta = json.loads(path.read_text())
+    except ValueError as e:
+        raise ValueError(f"{path}: not valid JSON ({e})") from None
+    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+        raise ValueError(f"{path}: not a torch4dtree synthetic dataset manifest")
+    if meta.get("version", 0) > FORMAT_VERSION:
+        raise ValueError(f"{path}: format version {meta.get('version')} is newer than this package's {FORMAT_VERSION}")
+    return meta
 
 
 def run_synth(kind: str, plants: int, seed: int, out: str, frames: int = 10, overwrite: bool = False) -> Path:
