@@ -865,7 +865,8 @@ def add_render_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--frames", type=int, default=None,
                         help="video frames (default: one per time point; 36 for a turn around one tree)")
     parser.add_argument("--color", choices=COLOR_MODES, default="layer",
-                        help="colour branches by layer (red, blue, yellow, purple...) or by label")
+                        help="colour branches by layer (red, blue, yellow, purple...) or by label "
+                             "(branch identities from the SWC type column; equal labels share a colour)")
     parser.add_argument("--title", default=None, help="title written above grid images and videos")
     parser.add_argument("--overwrite", action="store_true", help="replace the output file if it exists")
     parser.add_argument("--repair", action="store_true", help="repair SWC files with cycles or several roots")
@@ -885,7 +886,8 @@ def run_render(args: argparse.Namespace) -> int:
             raise ValueError(f"--out must end in .png, .jpg, .gif or .mp4, got {out.name!r}")
         if out.exists() and not args.overwrite:
             raise FileExistsError(f"{out} exists; pass --overwrite to replace it")
-        load = LoadOptions(T=args.T, repair=args.repair)
+        # label colouring reads branch identities from the SWC type column (as synthetic plants store them)
+        load = LoadOptions(T=args.T, repair=args.repair, labels_from_type=args.color == "label")
         path: Path = args.path
         common = dict(view=args.view, color=args.color, elevation=args.elevation)
         single = args.size or (512, 512)
