@@ -124,11 +124,12 @@ def test_self_distance_is_zero():
 def test_invariance_to_rotation_warps_and_permutations(rotation):
     rng = np.random.default_rng(1)
     gen = torch.Generator().manual_seed(1)
-    A = random_tree(rng, T=32)
-    B = transformed_copy(A, gen, rotation)
+    A = random_tree(rng, n_side=(6, 8), T=32)  # close siblings: the warps reorder some of them
+    B = transformed_copy(A, gen, rotation, strength=1.2)
+    assert any(int(B.label[a]) != int(A.label[b]) for a, b in index_order_matches(B, A))  # order is wrong
     r = register_trees(B, A, rotation=rotation)
     norm = _tree_norm(A)
-    assert float(r.distance) < 0.08 * norm, (float(r.distance), norm)
+    assert float(r.distance) < 0.12 * norm, (float(r.distance), norm)
     assert float(r.distance) < 0.5 * float(r.distance_before)
     assert branch_accuracy(r, B, A) == 1.0
     if rotation != "none":  # the recovered rotation undoes the applied one (up to the residual)

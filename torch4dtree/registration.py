@@ -128,6 +128,9 @@ class _Config:
 # ----------------------------------------------------------------------------- the recursive solver
 
 
+# a rotation start whose energy is this many times the best start's of the same pair is dropped
+STOP_START_RATIO = 1.5
+
 # below this many pairs the serial DP kernel beats the thread-parallel one (measured on 2 busy cores)
 SERIAL_DP_BELOW = 256
 
@@ -243,7 +246,7 @@ def _rotation_update(mov: _Tree, ref: _Tree, cfg: _Config, lambdas: Lambdas, rot
     qw = warp_srvf(mov.q[a_idx], torch.from_numpy(cfg.gamma[a_idx]))
     qr = ref.q[b_idx]
     M = qr.shape[1]
-    A = torch.einsum("k,kmi,kmj->ij", w, qr, qw) / M
+    A = (w[:, None, None, None] * qr.unsqueeze(-1) * qw.unsqueeze(-2)).sum((0, 1)) / M  # elementwise: see _rotate
     O = kabsch(A[None])[0] if rotation == "so3" else vertical_rotation(A[None], up)[0]
 
     def matched_energy(R: Tensor) -> float:
@@ -356,7 +359,7 @@ def _check_lambdas(lambdas: Sequence[float]) -> Lambdas:
 
 def register_to_reference(trees: Trees, reference: Trees, lambdas: Sequence[float] = (1.0, 1.0, 1.0),
                           rotation: str = "none", up: Sequence[float] | Tensor | None = None, n_starts: int = 4,
-                          max_iters: int = 10, tol: float = 1e-6, neighbourhood: int = 6, band: int | None = 6,
+                          max_iters: int = 10, tol: float = 1e-4, neighbourhood: int = 6, band: int | None = 6,
                           coarse: int | None = 32, refine: int = 0, prune: bool = True) -> list[TreeRegistration]:
     """Register every tree of ``trees`` (moving) onto the single tree ``reference``, all at once.
 
@@ -406,6 +409,9 @@ def register_to_reference(trees: Trees, reference: Trees, lambdas: Sequence[floa
                 if e_new < best[m].energy:  # type: ignore[union-attr]
                     best[m] = cand
                 e = min(e_new, cfg.energy)
+                # a start far behind the best one of its pair will not catch up: stop it
+                if e > STOP_START_RATIO * best[m].energy + 1e-12:  # type: ignore[union-attr]
+                    continue
                 if not math.isfinite(prev) or e < prev - tol * prev:
                     nxt.append((m, 0, O_new))
                     nlast.append(e)
