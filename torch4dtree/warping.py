@@ -70,7 +70,8 @@ def identity_warp(B: int, T: int, like: Tensor | None = None) -> Tensor:
 
 
 def random_warp(B: int, T: int, generator: torch.Generator | None = None, strength: float = 1.0,
-                modes: int = 4, dtype: torch.dtype = torch.float64, device: torch.device | str = "cpu") -> Tensor:
+                modes: int = 4, dtype: torch.dtype = torch.float64,
+                device: torch.device | str = "cpu") -> Tensor:
     """Smooth random warps ``(B, T)``: monotone, ``gamma(0) = 0``, ``gamma(1) = 1``.
 
     ``gamma' ∝ exp(f)`` with ``f`` a random combination of ``modes`` cosines whose amplitudes
@@ -112,7 +113,7 @@ def compose_warps(gamma1: Tensor, gamma2: Tensor) -> Tensor:
 
 
 def warp_energy(q1: Tensor, q2: Tensor, gamma: Tensor, rotation: Tensor | None = None) -> Tensor:
-    """The discrete energy ``||q1 - O warp_srvf(q2, gamma)||^2``. ``(B,M,d),(B,M,d),(B,M+1),(B,d,d) -> (B,)``."""
+    """Discrete energy ``||q1 - O warp_srvf(q2, gamma)||^2``. ``(B,M,d),(B,M,d),(B,M+1),(B,d,d) -> (B,)``."""
     q2w = warp_srvf(q2, gamma)
     if rotation is not None:
         q2w = q2w @ rotation.transpose(-1, -2)
@@ -133,7 +134,7 @@ def neighbourhood_steps(n: int) -> tuple[tuple[int, int], ...]:
 
 
 def _reachable_band(M: int, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """Columns ``[lo_i, hi_i]`` of the lattice reachable from (0,0) and reaching (M,M) with slopes in [1/n, n]."""
+    """Columns ``[lo_i, hi_i]`` of lattice nodes on some path (0,0) -> (M,M) with slopes in [1/n, n]."""
     i = np.arange(M + 1)
     lo = np.maximum(-(-i // n), M - n * (M - i))
     hi = np.minimum(n * i, M - (-(-(M - i) // n)))
@@ -199,8 +200,10 @@ if HAVE_NUMBA:
                     fr = 1.0
                 for c in range(d):
                     for t in range(L):
-                        P1[c, t] = beta2t[c, t + f] + fr * (beta2t[c, t + f + 1] - beta2t[c, t + f]) if t + f < M \
-                            else beta2t[c, M]
+                        if t + f < M:
+                            P1[c, t] = beta2t[c, t + f] + fr * (beta2t[c, t + f + 1] - beta2t[c, t + f])
+                        else:
+                            P1[c, t] = beta2t[c, M]
                 for t in range(L):
                     nv[t] = 0.0
                 for c in range(d):
@@ -369,7 +372,8 @@ if HAVE_NUMBA:
         return e / M
 
     @numba.njit(cache=True, boundscheck=False)
-    def _nb_rotation(q1: np.ndarray, beta2: np.ndarray, gamma: np.ndarray, mode: int, up: np.ndarray) -> np.ndarray:
+    def _nb_rotation(q1: np.ndarray, beta2: np.ndarray, gamma: np.ndarray, mode: int,
+                     up: np.ndarray) -> np.ndarray:
         """Optimal rotation (1 vertical, 2 so3) of ``warp_srvf(q2, gamma)`` onto ``q1`` (see rotation.py)."""
         M, d = q1.shape
         bw = np.empty((M + 1, d))
@@ -704,14 +708,19 @@ def _dp_torch(q1: Tensor, q2: Tensor, n: int, lo: np.ndarray, hi: np.ndarray) ->
     groups: dict[int, list[int]] = {}
     QWd: dict[int, Tensor] = {}
     SSd: dict[int, Tensor] = {}
-    for s, (a, b) in enumerate(steps):
+    for s, (a, _) in enumerate(steps):
         groups.setdefault(a, []).append(s)
     for a, idx in groups.items():
         qws, sss = [], []
         for s in idx:
             b = steps[s][1]
             L = M + 1 - b
-            x = torch.arange(L, device=dev, dtype=dt)[None, :] + torch.arange(a + 1, device=dev, dtype=dt)[:, None] * (b / a)
+            if L <= 0:  # a step longer than the grid: never usable
+                qws.append(torch.zeros(B, a, d, M + 1, dtype=dt, device=dev))
+                sss.append(torch.full((B, M + 1), float("inf"), dtype=dt, device=dev))
+                continue
+            x = (torch.arange(L, device=dev, dtype=dt)[None, :]
+                 + torch.arange(a + 1, device=dev, dtype=dt)[:, None] * (b / a))
             fl = x.floor().clamp(0, M - 1).long()
             fr = (x - fl.to(dt)).unsqueeze(-1)
             P0 = beta2[:, fl.reshape(-1)].reshape(B, a + 1, L, d)
@@ -719,7 +728,8 @@ def _dp_torch(q1: Tensor, q2: Tensor, n: int, lo: np.ndarray, hi: np.ndarray) ->
             P = P0 + fr * (P1 - P0)
             v = torch.diff(P, dim=1) * M  # (B, a, L, d)
             nv = v.norm(dim=-1)
-            qw = torch.where(nv.unsqueeze(-1) > 0, v / nv.clamp_min(1e-300).sqrt().unsqueeze(-1), 0) * (2.0 / M)
+            qw = torch.where(nv.unsqueeze(-1) > 0, v / nv.clamp_min(1e-300).sqrt().unsqueeze(-1), 0)
+            qw = qw * (2.0 / M)
             qwd = torch.zeros(B, a, d, M + 1, dtype=dt, device=dev)
             qwd[..., b:] = qw.permute(0, 1, 3, 2)
             ssd = torch.full((B, M + 1), float("inf"), dtype=dt, device=dev)
@@ -832,7 +842,8 @@ def _pick_backend(backend: str, x: Tensor) -> str:
     return backend
 
 
-def _run_dp(q1: Tensor, q2: Tensor, n: int, lo: np.ndarray, hi: np.ndarray, backend: str) -> tuple[Tensor, Tensor]:
+def _run_dp(q1: Tensor, q2: Tensor, n: int, lo: np.ndarray, hi: np.ndarray,
+            backend: str) -> tuple[Tensor, Tensor]:
     """One DP over the lattice restricted to columns ``[lo, hi] (B, M+1)`` per row. ``-> energy, gamma``."""
     if backend == "numba":
         energy, gamma = _dp_numba(q1, q2, n, lo, hi)
@@ -842,7 +853,7 @@ def _run_dp(q1: Tensor, q2: Tensor, n: int, lo: np.ndarray, hi: np.ndarray, back
 
 def _dp_search(q1: Tensor, q2: Tensor, n: int, band: int | None, init: Tensor | None,
                backend: str) -> tuple[Tensor, Tensor]:
-    """Full DP (``band=None`` or no ``init``) or DP in a band around ``init (B, M+1)``. ``-> gamma, energy``."""
+    """Full DP (``band=None`` or no ``init``) or DP in a band around ``init (B, M+1)``. ``-> gamma, E``."""
     B, M, _ = q1.shape
     if band is None or init is None:
         lo, hi = _reachable_band(M, n)
@@ -1017,8 +1028,8 @@ def _register_numba(q1: Tensor, q2: Tensor, rotation: str, up: Tensor,
     A, Bs = _step_arrays(cfg.neighbourhood)
     Af, Bf = _step_arrays(cfg.band_neighbourhood)
     ints = np.array([cfg.neighbourhood, -1 if cfg.band is None else cfg.band,
-                     1 << 30 if cfg.coarse is None else cfg.coarse, _MODES[rotation], cfg.max_iters, cfg.refine,
-                     cfg.starts, cfg.band_neighbourhood, cfg.fine_iters], np.int64)
+                     1 << 30 if cfg.coarse is None else cfg.coarse, _MODES[rotation], cfg.max_iters,
+                     cfg.refine, cfg.starts, cfg.band_neighbourhood, cfg.fine_iters], np.int64)
     q1n = q1.detach().to("cpu", torch.float64).contiguous().numpy()
     q2n = q2.detach().to("cpu", torch.float64).contiguous().numpy()
     upn = up.detach().to("cpu", torch.float64).contiguous().numpy()
@@ -1028,7 +1039,8 @@ def _register_numba(q1: Tensor, q2: Tensor, rotation: str, up: Tensor,
     return tuple(torch.from_numpy(x).to(q1.device, q1.dtype) for x in out)  # type: ignore[return-value]
 
 
-def _check_inputs(moving: Tensor, reference: Tensor, min_points: int, what: str) -> tuple[Tensor, Tensor, bool]:
+def _check_inputs(moving: Tensor, reference: Tensor, min_points: int,
+                  what: str) -> tuple[Tensor, Tensor, bool]:
     """Validate a pair of batched (or single) inputs; returns them batched and whether they were single."""
     if not isinstance(moving, Tensor) or not isinstance(reference, Tensor):
         raise TypeError("moving and reference must be torch tensors")
@@ -1107,9 +1119,9 @@ def register_curves(moving: Tensor, reference: Tensor, rotation: str = "none", s
                     neighbourhood: int = 6, band: int | None = 6, coarse: int | None = 40,
                     band_neighbourhood: int | None = None,
                     up: Tensor | tuple[float, float, float] | None = None, max_iters: int = 20,
-                    fine_iters: int = 3, tol: float = 1e-6, refine: int = 4, starts: int = 1,
+                    fine_iters: int = 3, tol: float = 1e-6, refine: int = 4, starts: int | None = None,
                     backend: str = "auto") -> CurveRegistration:
-    """Elastic registration of ``moving`` onto ``reference``: ``min_{gamma, O} ||q_ref - O (q_mov o gamma)||``.
+    """Elastic registration of ``moving`` onto ``reference``: ``min_{gamma,O} ||q_ref - O (q_mov o gamma)||``.
 
     Args:
         moving: ``(B, T2, d)`` curves (``(B, T2-1, d)`` SRVFs if ``srvf_input``), or one pair unbatched.
@@ -1122,7 +1134,9 @@ def register_curves(moving: Tensor, reference: Tensor, rotation: str = "none", s
         max_iters: rounds of (DP warp, optimal rotation) on the coarsest grid; ``fine_iters`` on finer
             grids. Rounds stop early when the energy decreases by less than ``tol`` relatively.
         starts: initial rotations tried on the coarsest grid (the Kabsch rotation at the identity warp,
-            then half-turns about the axes (so3) or turns about ``up`` (vertical)); the best is kept.
+            then half-turns about the axes (so3) or quarter turns about ``up`` (vertical)); the best is
+            kept. Default 4 with a rotation (the alternation alone gets stuck 180 degrees off now and
+            then), 1 without.
 
     Returns:
         :class:`CurveRegistration`. Warps and rotations are found without gradients; ``distance``,
@@ -1133,7 +1147,10 @@ def register_curves(moving: Tensor, reference: Tensor, rotation: str = "none", s
     else:
         moving, reference, single = _check_inputs(moving, reference, 2, "curves")
     check_rotation_mode(rotation, moving.shape[-1])
-    cfg = _settings(neighbourhood, band, coarse, band_neighbourhood, max_iters, fine_iters, tol, refine, starts)
+    if starts is None:
+        starts = 1 if rotation == "none" else 4
+    cfg = _settings(neighbourhood, band, coarse, band_neighbourhood, max_iters, fine_iters, tol, refine,
+                    starts)
     beta_m, beta_r = (inverse_srvf(moving), inverse_srvf(reference)) if srvf_input else (moving, reference)
     T = beta_r.shape[1]
     beta_m = _resample_curve(beta_m, T)
