@@ -259,9 +259,18 @@ class AlignedTrees:
             counts.append(len(order))
         raw = torch.cat(pts_all)
         T = M + 1
-        resampled = _resample_or_keep(raw, T)
-        return Trees(resampled, torch.tensor(par_all, dtype=torch.long), torch.stack(s_all).to(raw.dtype),
-                     torch.tensor(counts, dtype=torch.long), torch.tensor(lab_all, dtype=torch.long))
+        out = Trees(_resample_or_keep(raw, T), torch.tensor(par_all, dtype=torch.long),
+                    torch.stack(s_all).to(raw.dtype).clamp(0, 1), torch.tensor(counts, dtype=torch.long),
+                    torch.tensor(lab_all, dtype=torch.long))
+        # resampling moves a parent's points by chord effects: snap each child back onto its parent
+        side = out.parent >= 0
+        if bool(side.any()):
+            pts = out.points.clone()
+            gp = out.global_parent.tolist()
+            for i in side.nonzero()[:, 0].tolist():  # parents first, so a parent is final before its children
+                pts[i, 0] = interpolate_curve(pts[gp[i]][None], out.s[i].reshape(1, 1))[0, 0]
+            out = out.with_points(pts)
+        return out
 
 
 def _arc_fraction(curve: Tensor, s: Tensor) -> Tensor:
