@@ -260,3 +260,23 @@ def test_pheno4d_consecutive_days():
     for _, name, a, b in picked:
         r = register_trees(b, a)
         assert float(r.distance) < float(r.distance_before), name
+
+
+def test_register_cli(tmp_path, capsys):
+    import json
+
+    from torch4dtree.io import write_swc
+
+    rng = np.random.default_rng(13)
+    a, b = tmp_path / "a.swc", tmp_path / "b.swc"
+    write_swc(a, random_tree(rng, depth=2, T=16))
+    write_swc(b, random_tree(rng, depth=2, T=16))
+    from torch4dtree.cli import main
+
+    out = tmp_path / "out"
+    assert main(["register", str(a), str(b), "--json", "--T", "16", "--out", str(out), "--steps", "3"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["distance_after"] <= res["distance_before"] + 1e-9 and res["matches"][0] == [0, 0]
+    assert len(list(out.glob("*.swc"))) == 5
+    assert main(["register", str(a), str(b), "--T", "16", "--out", str(out)]) == 2  # never overwrites
+    assert main(["register", str(a), str(b), "--T", "16", "--out", str(out), "--overwrite"]) == 0
