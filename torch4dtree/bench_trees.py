@@ -18,7 +18,10 @@ from .io import LoadOptions, read_tree
 from .registration import register_trees
 from .structures import Trees
 
-__all__ = ["PAPER_SECONDS", "benchmark_trees", "consecutive_pairs", "default_data_root"]
+__all__ = [
+    "PAPER_SECONDS", "benchmark_cycle_consistency", "benchmark_synthetic_accuracy", "benchmark_trees",
+    "consecutive_pairs", "default_data_root",
+]
 
 PAPER_SECONDS = 2.3
 
@@ -98,4 +101,65 @@ def benchmark_trees(root: str | Path | None = None, T: int = 64, rotation: str =
                                    [r[4] for r in rows if r[0] == k]) for k in kinds if any(r[0] == k for r in rows)}
     out["rows"] = rows
     out["T"], out["rotation"], out["paper_seconds"] = T, rotation, PAPER_SECONDS
+    return out
+
+
+def benchmark_cycle_consistency(root: str | Path | None = None, T: int = 64, rotation: str = "none",
+                                kinds: tuple[str, ...] = ("tomato", "maize"), max_pairs: int | None = None,
+                                **kwargs: object) -> dict:
+    """Cycle consistency (paper Table 2) over the consecutive-day Pheno4D pairs, per eps, vs the paper.
+
+    Returns ``{"eps": [...], "mean": [...], "median": [...], "std": [...], "paper_mean": [...],
+    "unmatched_mean": ..., "lost_mean": ..., "pairs": n, "per_kind": {...}}`` (shares in [0, 1];
+    see :mod:`torch4dtree.correspondence` for how unmatched points count).
+    """
+    import numpy as np
+
+    from .correspondence import DEFAULT_EPS, PAPER_CYCLE_ERRORS, cycle_consistency
+
+    rows = []
+    for kind, name, a, b in consecutive_pairs(root, T, kinds, max_pairs):
+        fwd = register_trees(a, b, rotation=rotation, **kwargs)
+        bwd = register_trees(b, a, rotation=rotation, **kwargs)
+        cc = cycle_consistency(a, b, DEFAULT_EPS, forward=fwd, backward=bwd)
+        rows.append((kind, name, cc.error.numpy(), cc.unmatched, cc.lost))
+
+    def summ(sel: list) -> dict:
+        err = np.stack([r[2] for r in sel])
+        return {"pairs": len(sel), "mean": err.mean(0).tolist(), "median": np.median(err, 0).tolist(),
+                "std": err.std(0).tolist(), "unmatched_mean": float(np.mean([r[3] for r in sel])),
+                "lost_mean": float(np.mean([r[4] for r in sel]))}
+
+    out = summ(rows)
+    out["eps"] = list(DEFAULT_EPS)
+    out["paper_mean"] = [PAPER_CYCLE_ERRORS[e] for e in DEFAULT_EPS]
+    out["per_kind"] = {k: summ([r for r in rows if r[0] == k]) for k in kinds if any(r[0] == k for r in rows)}
+    return out
+
+
+def benchmark_synthetic_accuracy(kinds: tuple[str, ...] = ("tomato", "maize"), seeds: tuple[int, ...] = (0, 1, 2),
+                                 T: int = 32, n_frames: int = 10, **kwargs: object) -> dict:
+    """Branch-correspondence accuracy (ground truth labels) between consecutive frames of synthetic plants.
+
+    Returns ``{kind: {"pairs", "accuracy_mean", "accuracy_min", "median_s", "cycle_error_mean": [...]}}``.
+    """
+    import numpy as np
+
+    from .correspondence import branch_accuracy, cycle_consistency
+    from .data import synthetic_plant
+
+    out = {}
+    for kind in kinds:
+        acc, times, cyc = [], [], []
+        for seed in seeds:
+            frames = synthetic_plant(kind, seed, n_frames=n_frames, T=T, dtype=torch.float64).sequence.frames
+            for k in range(len(frames) - 1):
+                a, b = frames[k], frames[k + 1]
+                t0 = time.perf_counter()
+                res = register_trees(b, a, **kwargs)
+                times.append(time.perf_counter() - t0)
+                acc.append(branch_accuracy(res, b, a))
+                cyc.append(cycle_consistency(a, b, backward=res, **kwargs).error.numpy())
+        out[kind] = {"pairs": len(acc), "accuracy_mean": float(np.mean(acc)), "accuracy_min": float(np.min(acc)),
+                     "median_s": statistics.median(times), "cycle_error_mean": np.mean(cyc, 0).tolist()}
     return out

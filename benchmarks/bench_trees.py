@@ -1,0 +1,61 @@
+"""Registration of 3D trees on Pheno4D (consecutive days) vs the paper: time, distances, cycle consistency,
+and branch-correspondence accuracy on synthetic plants with ground truth.
+
+    python benchmarks/bench_trees.py [--T 64] [--rotation none] [--repeats 1] [--skip-cycle] [--skip-synthetic]
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from torch4dtree.bench_trees import (
+    PAPER_SECONDS,
+    benchmark_cycle_consistency,
+    benchmark_synthetic_accuracy,
+    benchmark_trees,
+)
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__)
+    p.add_argument("--T", type=int, default=64)
+    p.add_argument("--rotation", default="none", choices=("none", "vertical", "so3"))
+    p.add_argument("--repeats", type=int, default=1)
+    p.add_argument("--skip-cycle", action="store_true")
+    p.add_argument("--skip-synthetic", action="store_true")
+    p.add_argument("--rows", action="store_true", help="print every pair")
+    a = p.parse_args()
+
+    r = benchmark_trees(T=a.T, rotation=a.rotation, repeats=a.repeats)
+    if a.rows:
+        for kind, name, sec, before, after, na, nb in r["rows"]:
+            print(f"{kind:7s} {name:45s} {na:3d}->{nb:3d} branches {sec * 1e3:8.1f} ms "
+                  f"d {before:7.2f} -> {after:7.2f}")
+    print(f"\nPheno4D consecutive-day pairs, T={a.T}, rotation={a.rotation} (paper: {PAPER_SECONDS} s per pair)")
+    print(f"{'kind':8s} {'pairs':>5s} {'median ms':>10s} {'max ms':>9s} {'x paper':>8s} "
+          f"{'d before':>9s} {'d after':>8s} {'improved':>9s}")
+    for kind, s in list(r["per_kind"].items()) + [("all", r)]:
+        print(f"{kind:8s} {s['pairs']:5d} {s['median_s'] * 1e3:10.1f} {s['max_s'] * 1e3:9.1f} "
+              f"{s['speedup_vs_paper']:8.0f} {s['distance_before_mean']:9.2f} {s['distance_after_mean']:8.2f} "
+              f"{s['improved_pairs']:5d}/{s['pairs']}")
+    if not a.skip_cycle:
+        c = benchmark_cycle_consistency(T=a.T, rotation=a.rotation)
+        print("\ncycle consistency (share of points returning farther than eps * height; mean over pairs)")
+        print(f"{'':16s}" + "".join(f"{'eps=' + str(e):>11s}" for e in c["eps"]))
+        print(f"{'paper (mean)':16s}" + "".join(f"{100 * v:10.2f}%" for v in c["paper_mean"]))
+        for kind, s in list(c["per_kind"].items()) + [("all", c)]:
+            print(f"{kind + ' mean':16s}" + "".join(f"{100 * v:10.2f}%" for v in s["mean"]))
+            print(f"{kind + ' median':16s}" + "".join(f"{100 * v:10.2f}%" for v in s["median"]))
+        print(f"points on branches matched to null (excluded): {100 * c['unmatched_mean']:.2f}%; "
+              f"lost on the way back (counted): {100 * c['lost_mean']:.2f}%")
+    if not a.skip_synthetic:
+        s = benchmark_synthetic_accuracy(rotation=a.rotation)
+        print("\nsynthetic plants, consecutive frames (ground-truth branch identities)")
+        for kind, v in s.items():
+            print(f"{kind:8s} pairs {v['pairs']:3d}  accuracy mean {100 * v['accuracy_mean']:.1f}% "
+                  f"min {100 * v['accuracy_min']:.1f}%  median {v['median_s'] * 1e3:.1f} ms  cycle error "
+                  + " ".join(f"{100 * e:.2f}%" for e in v["cycle_error_mean"]))
+
+
+if __name__ == "__main__":
+    main()
