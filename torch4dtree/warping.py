@@ -695,6 +695,14 @@ def _dp_numba(q1: Tensor, q2: Tensor, n: int, lo: np.ndarray, hi: np.ndarray) ->
 # ----------------------------------------------------------------------------- torch backend
 
 
+def _shift_right(x: Tensor, b: int, fill: Tensor) -> Tensor:
+    """``y[:, j] = x[:, j - b]`` (``fill`` where ``j < b``). ``(B, n) -> (B, n)``."""
+    n = x.shape[1]
+    if b >= n:
+        return fill.expand_as(x)
+    return torch.cat([fill.expand(x.shape[0], b), x[:, : n - b]], 1)
+
+
 def _dp_torch(q1: Tensor, q2: Tensor, n: int, lo: np.ndarray, hi: np.ndarray) -> tuple[Tensor, Tensor]:
     """The same DP, vectorised over pairs, columns and steps; loops over lattice rows only."""
     B, M, d = q1.shape
@@ -752,8 +760,7 @@ def _dp_torch(q1: Tensor, q2: Tensor, n: int, lo: np.ndarray, hi: np.ndarray) ->
                 continue
             cost = SSd[a] - torch.einsum("brc,bsrcj->bsj", q1[:, k:i], QWd[a])
             Ek = E[:, k]
-            shifted = torch.stack(
-                [torch.cat([inf.expand(B, steps[s][1]), Ek[:, : M + 1 - steps[s][1]]], 1) for s in idx], 1)
+            shifted = torch.stack([_shift_right(Ek, steps[s][1], inf) for s in idx], 1)
             cand[:, idx] = shifted + cost
         best, barg = cand.min(1)
         inside = (cols >= lo_t[:, i : i + 1]) & (cols <= hi_t[:, i : i + 1])
