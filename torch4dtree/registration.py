@@ -362,7 +362,7 @@ def _check_lambdas(lambdas: Sequence[float]) -> Lambdas:
 
 def register_to_reference(trees: Trees, reference: Trees, lambdas: Sequence[float] = (1.0, 1.0, 1.0),
                           rotation: str = "none", up: Sequence[float] | Tensor | None = None, n_starts: int = 4,
-                          max_iters: int = 10, tol: float = 1e-4, neighbourhood: int = 6, band: int | None = 6,
+                          max_iters: int = 10, tol: float = 1e-4, neighbourhood: int = 4, band: int | None = None,
                           coarse: int | None = 32, refine: int = 0, prune: bool = True) -> list[TreeRegistration]:
     """Register every tree of ``trees`` (moving) onto the single tree ``reference``, all at once.
 
