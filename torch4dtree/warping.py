@@ -1089,8 +1089,8 @@ def _settings(neighbourhood: int, band: int | None, coarse: int | None, band_nei
     return _Settings(neighbourhood, band, coarse, nf, max_iters, fine_iters, float(tol), refine, starts)
 
 
-def dp_warp(q1: Tensor, q2: Tensor, neighbourhood: int = 6, band: int | None = 6, coarse: int | None = 40,
-            band_neighbourhood: int | None = None, refine: int = 0, backend: str = "auto") -> DPWarp:
+def dp_warp(q1: Tensor, q2: Tensor, neighbourhood: int = 6, band: int | None = 4, coarse: int | None = 16,
+            band_neighbourhood: int | None = 5, refine: int = 0, backend: str = "auto") -> DPWarp:
     """Optimal warps of ``q2`` onto ``q1`` by dynamic programming (no rotation).
 
     Args:
@@ -1100,7 +1100,9 @@ def dp_warp(q1: Tensor, q2: Tensor, neighbourhood: int = 6, band: int | None = 6
         band: with ``M > coarse``, the DP first runs on a grid of about ``M / 3`` segments (recursively
             until at most ``coarse``), then on the fine grid only within ``band`` cells of the coarse
             warp. ``None``: one DP over the whole lattice (its exact optimum over all lattice warps).
-        band_neighbourhood: steps of the banded (finer) DPs; default ``neighbourhood``.
+        band_neighbourhood: steps of the banded (finer) DPs (``None``: ``neighbourhood``). The
+            defaults (6 on the coarse grid, 5 in a band of 4 cells) are a speed / accuracy trade-off
+            measured in benchmarks/README.md; ``band=None`` gives the exact lattice optimum.
         refine: sweeps of a local search that moves warp nodes off the lattice (0 = pure DP);
             it only accepts improvements, so the warp stays monotone and the energy only decreases.
         backend: ``"numba"`` (CPU), ``"torch"`` (any device) or ``"auto"`` (numba for CPU tensors).
@@ -1123,10 +1125,10 @@ def dp_warp(q1: Tensor, q2: Tensor, neighbourhood: int = 6, band: int | None = 6
 
 
 def register_curves(moving: Tensor, reference: Tensor, rotation: str = "none", srvf_input: bool = False,
-                    neighbourhood: int = 6, band: int | None = 6, coarse: int | None = 40,
-                    band_neighbourhood: int | None = None,
-                    up: Tensor | tuple[float, float, float] | None = None, max_iters: int = 20,
-                    fine_iters: int = 3, tol: float = 1e-6, refine: int = 4, starts: int | None = None,
+                    neighbourhood: int = 6, band: int | None = 4, coarse: int | None = 16,
+                    band_neighbourhood: int | None = 5,
+                    up: Tensor | tuple[float, float, float] | None = None, max_iters: int = 6,
+                    fine_iters: int = 1, tol: float = 1e-6, refine: int = 2, starts: int | None = None,
                     backend: str = "auto") -> CurveRegistration:
     """Elastic registration of ``moving`` onto ``reference``: ``min_{gamma,O} ||q_ref - O (q_mov o gamma)||``.
 
@@ -1138,7 +1140,8 @@ def register_curves(moving: Tensor, reference: Tensor, rotation: str = "none", s
         srvf_input: inputs are SRVFs (curves then start at the origin).
         neighbourhood, band, coarse, band_neighbourhood, refine, backend: DP settings, see :func:`dp_warp`.
         up: the vertical axis for ``rotation="vertical"``.
-        max_iters: rounds of (DP warp, optimal rotation) on the coarsest grid; ``fine_iters`` on finer
+        max_iters: rounds of (DP warp, optimal rotation) on the coarsest grid (with a rotation, that
+            grid has at least ``4 d`` segments); ``fine_iters`` on finer
             grids. Rounds stop early when the energy decreases by less than ``tol`` relatively.
         starts: initial rotations tried on the coarsest grid (the Kabsch rotation at the identity warp,
             then half-turns about the axes (so3) or quarter turns about ``up`` (vertical)); the best is
@@ -1156,6 +1159,9 @@ def register_curves(moving: Tensor, reference: Tensor, rotation: str = "none", s
     check_rotation_mode(rotation, moving.shape[-1])
     if starts is None:
         starts = 1 if rotation == "none" else 4
+    if coarse is not None and rotation != "none":
+        # a rotation of R^d is poorly determined by a very coarse curve in high dimension
+        coarse = max(coarse, 4 * moving.shape[-1])
     cfg = _settings(neighbourhood, band, coarse, band_neighbourhood, max_iters, fine_iters, tol, refine,
                     starts)
     beta_m, beta_r = (inverse_srvf(moving), inverse_srvf(reference)) if srvf_input else (moving, reference)
