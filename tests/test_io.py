@@ -71,6 +71,17 @@ def test_bad_swc_names_file_and_line(tmp_path, text, message):
     assert "bad.swc" in str(err.value)
 
 
+def test_main_branch_named_explicitly(tmp_path):
+    p = write(tmp_path, GOOD)
+    t = read_swc(p, T=8, main_path=[1, 2, 3, 5, 6])
+    torch.testing.assert_close(t.points[0, -1], torch.tensor([2.0, 0.0, 2.5]))
+    assert t.branches_per_layer() == [[1, 1]] and t.points[1, -1, 2].item() == pytest.approx(5.0)
+    with pytest.raises(SWCError, match="names node 9"):
+        read_swc(p, main_path=[1, 9])
+    with pytest.raises(TreeError, match="not a chain"):
+        read_swc(p, main_path=[1, 3])
+
+
 def test_degenerate_branch_is_an_error(tmp_path):
     text = "1 0 0 0 0 1 -1\n2 0 0 0 1 1 1\n3 0 0 0 1 1 2\n"  # the only branch has zero length at the end
     text_zero = "1 0 0 0 0 1 -1\n2 0 0 0 0 1 1\n"

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import warnings
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -100,15 +101,24 @@ def read_swc(
     min_branch_length: float = 0.0,
     labels_from_type: bool = False,
     repair: bool = False,
+    main_path: Sequence[int] | None = None,
 ) -> Trees:
     """Read an SWC file as a single-tree :class:`Trees` (longest-path rule, SPEC §2).
 
     With ``labels_from_type`` the type column holds branch identities (as the synthetic plants
-    write them) and becomes :attr:`Trees.label`.
+    write them) and becomes :attr:`Trees.label`. ``main_path`` names the main branch explicitly as
+    the file's node ids from the root (default: the longest root-to-leaf path).
     """
     sk = read_swc_skeleton(path, repair)
+    path_index = None
+    if main_path is not None:
+        index = {int(nid): i for i, nid in enumerate(sk.ids.tolist())}
+        missing = [nid for nid in main_path if int(nid) not in index]
+        if missing:
+            raise SWCError(f"{path}: the main path names node {missing[0]}, which is not in the file")
+        path_index = [index[int(nid)] for nid in main_path]
     return skeleton_to_trees(
-        sk.xyz, sk.parent, T=T, max_layers=max_layers, min_branch_length=min_branch_length,
+        sk.xyz, sk.parent, T=T, max_layers=max_layers, min_branch_length=min_branch_length, main_path=path_index,
         node_labels=sk.types if labels_from_type else None, where=str(path), ids=sk.ids,
     )
 
