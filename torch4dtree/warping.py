@@ -539,11 +539,15 @@ if HAVE_NUMBA:
 
     @numba.njit(cache=True, boundscheck=False)
     def _nb_start_rotation(O: np.ndarray, mode: int, up: np.ndarray, k: int, starts: int) -> np.ndarray:
-        """Start ``k`` of ``starts``: ``O`` itself, then ``O`` turned about ``up`` (vertical) or by a flip of
-        two axes (so3: half-turns about the coordinate axes)."""
+        """Start ``k`` of ``starts``: ``O`` itself, the identity, then ``O`` turned about ``up`` (vertical)
+        or by a flip of two axes (so3: half-turns about the coordinate axes)."""
         d = O.shape[0]
         if k == 0:
             return O.copy()
+        if k == 1:  # no rotation: the DP runs first (Kabsch at the identity warp can be biased)
+            return np.eye(d)
+        k -= 1
+        starts -= 1
         if mode == 1:
             th = 2.0 * math.pi * k / starts
             u = up / math.sqrt((up * up).sum())
@@ -939,6 +943,9 @@ def _start_rotation(O: Tensor, rotation: str, up: Tensor, k: int, starts: int) -
     d = O.shape[-1]
     if k == 0:
         return O.clone()
+    if k == 1:
+        return torch.eye(d, dtype=O.dtype, device=O.device).expand_as(O).clone()
+    k, starts = k - 1, starts - 1
     if rotation == "vertical":
         th = torch.full(O.shape[:1], 2.0 * math.pi * k / starts, dtype=O.dtype, device=O.device)
         return O @ axis_rotation(up.to(O.dtype), th)
@@ -1144,9 +1151,9 @@ def register_curves(moving: Tensor, reference: Tensor, rotation: str = "none", s
             grid has at least ``4 d`` segments); ``fine_iters`` on finer
             grids. Rounds stop early when the energy decreases by less than ``tol`` relatively.
         starts: initial rotations tried on the coarsest grid (the Kabsch rotation at the identity warp,
-            then half-turns about the axes (so3) or quarter turns about ``up`` (vertical)); the best is
-            kept. Default 4 with a rotation (the alternation alone gets stuck 180 degrees off now and
-            then), 1 without.
+            the identity, then that Kabsch rotation turned by half-turns about the axes (so3) or by
+            turns about ``up`` (vertical)); the best is kept. Default 5 with a rotation (one start
+            gets stuck in a wrong basin now and then, e.g. 180 degrees off), 1 without.
 
     Returns:
         :class:`CurveRegistration`. Warps and rotations are found without gradients; ``distance``,
@@ -1158,7 +1165,7 @@ def register_curves(moving: Tensor, reference: Tensor, rotation: str = "none", s
         moving, reference, single = _check_inputs(moving, reference, 2, "curves")
     check_rotation_mode(rotation, moving.shape[-1])
     if starts is None:
-        starts = 1 if rotation == "none" else 4
+        starts = 1 if rotation == "none" else 5
     if coarse is not None and rotation != "none":
         # a rotation of R^d is poorly determined by a very coarse curve in high dimension
         coarse = max(coarse, 4 * moving.shape[-1])
