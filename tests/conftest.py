@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-PHENO4D = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "pheno4d"
+# the real data lives beside the repository (../shared), or wherever TORCH4DTREE_PHENO4D points
+PHENO4D = Path(os.environ.get("TORCH4DTREE_PHENO4D",
+                              Path(__file__).resolve().parents[1].parent / "shared" / "data" / "pheno4d"))
 
 
 def smooth_curve(rng: np.random.Generator, n: int = 40, length: float = 10.0, start=None, direction=None) -> np.ndarray:
@@ -53,7 +56,10 @@ def rng() -> np.random.Generator:
 
 
 def pheno4d(*parts: str) -> Path:
+    """A path in the Pheno4D data; skipped where the data is absent, but never in CI, where it must be."""
     path = PHENO4D.joinpath(*parts)
     if not path.exists():
+        if os.environ.get("CI"):
+            pytest.fail(f"real data not found at {path} (CI must have ../shared beside the repository)")
         pytest.skip(f"real data not found at {path}")
     return path
