@@ -222,7 +222,10 @@ def test_many_to_one_matches_one_by_one_and_pairwise():
     assert float(D[0, 1]) == pytest.approx(float(many[0].distance), rel=1e-9)
 
 
-def test_pairwise_distances_in_processes():
+def test_pairwise_distances_in_processes(monkeypatch):
+    import torch4dtree.registration as reg
+
+    monkeypatch.setattr(reg, "MIN_PAIRS_PER_PROCESS", 1)  # force the pool even for 3 pairs
     rng = np.random.default_rng(8)
     batch = Trees.cat([random_tree(rng, n_side=(1, 2), depth=2, T=16) for _ in range(3)])
     D1 = pairwise_distances(batch, processes=1, progress=False)

@@ -459,6 +459,8 @@ def register_trees(moving: Trees, reference: Trees, lambdas: Sequence[float] = (
 
 # ----------------------------------------------------------------------------- all pairs
 
+MIN_PAIRS_PER_PROCESS = 32
+
 _WORKER_TREES: list[Trees] = []
 _WORKER_KW: dict = {}
 
@@ -490,8 +492,9 @@ def pairwise_distances(trees: Trees, processes: int | None = None, progress: boo
     """All-pairs tree-shape distances ``(n, n)`` (symmetric, zero diagonal), over all cores.
 
     Tree ``j > i`` is registered onto tree ``i`` (one batched :func:`register_to_reference` per row);
-    rows are spread over a process pool (``processes`` defaults to the CPU count; 1 runs inline)
-    with a tqdm progress bar. ``kwargs`` are passed to :func:`register_to_reference`.
+    rows are spread over a process pool (``processes`` defaults to the CPU count; 1 runs inline; fewer
+    than ``MIN_PAIRS_PER_PROCESS`` pairs per process also run inline, as a worker takes seconds to
+    start) with a tqdm progress bar. ``kwargs`` are passed to :func:`register_to_reference`.
     """
     from tqdm.auto import tqdm
 
@@ -499,7 +502,8 @@ def pairwise_distances(trees: Trees, processes: int | None = None, progress: boo
     split = trees.split()
     out = torch.zeros(n, n, dtype=torch.float64)
     procs = processes if processes is not None else (os.cpu_count() or 1)
-    procs = max(1, min(procs, n - 1)) if n > 1 else 1
+    # a spawned worker pays seconds of start-up (torch import, numba cache load): small jobs run inline
+    procs = max(1, min(procs, n * (n - 1) // 2 // MIN_PAIRS_PER_PROCESS))
     bar = tqdm(total=n * (n - 1) // 2, disable=not progress, desc="pairwise distances", unit="pair")
     rows = range(n - 1)
 
