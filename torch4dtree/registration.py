@@ -133,6 +133,8 @@ class _Config:
 
 # a rotation start whose energy is this many times the best start's of the same pair is dropped
 STOP_START_RATIO = 1.5
+# ... and at most this many starts per pair keep alternating after the first round
+KEEP_STARTS = 2
 
 # below this many pairs the serial DP kernel beats the thread-parallel one (measured on 2 busy cores)
 SERIAL_DP_BELOW = 256
@@ -161,8 +163,12 @@ def _rotate(x: Tensor, O: Tensor) -> Tensor:
 
 
 def _solve(movs: Sequence[_Tree], refs: Sequence[_Tree], jobs: Sequence[tuple[int, int, Tensor]],
-           lambdas: Lambdas, dp_opts: dict, prune: bool) -> list[_Config]:
-    """Warps + assignments for fixed rotations. ``jobs[k] = (moving index, reference index, O (d, d))``."""
+           lambdas: Lambdas, dp_opts: dict, prune: bool, max_depth: int | None = None) -> list[_Config]:
+    """Warps + assignments for fixed rotations. ``jobs[k] = (moving index, reference index, O (d, d))``.
+
+    ``max_depth`` stops exploring pairs below that layer (their subtrees then count as unmatched): a cheap,
+    approximate solve used to rank starting rotations.
+    """
     lm, lp, ls = lambdas
     T = movs[0].q.shape[1] + 1
     grid = np.linspace(0.0, 1.0, T)
@@ -186,6 +192,8 @@ def _solve(movs: Sequence[_Tree], refs: Sequence[_Tree], jobs: Sequence[tuple[in
             ca, cb = mov.children[a], ref.children[b]
             sc = np.interp(mov.s[ca], gam[p], grid) if ca else np.zeros(0)
             info[(k, a, b)] = (float(E[p]), gam[p], sc)
+            if max_depth is not None and depth >= max_depth:
+                continue
             for c, s_c in zip(ca, sc):
                 for e in cb:
                     if prune:
@@ -278,6 +286,24 @@ def _initial_rotations(mov: _Tree, ref: _Tree, rotation: str, up: Tensor, n_star
         spins = axis_rotation(axis.to(torch.float64), angles)
         starts += [R @ starts[1] for R in spins]
     return starts
+
+
+def _rank_starts(movs: Sequence[_Tree], ref: _Tree, jobs: list[tuple[int, int, Tensor]], lambdas: Lambdas,
+                 dp_opts: dict, prune: bool, rotation: str, up: Tensor) -> list[tuple[int, int, Tensor]]:
+    """The ``KEEP_STARTS`` best starting rotations of each pair, ranked on the top two layers only
+    (one rotation update each): the full recursion then runs for those alone."""
+    configs = _solve(movs, [ref], jobs, lambdas, dp_opts, prune, max_depth=1)
+    scored = []
+    for (m, r, _), cfg in zip(jobs, configs):
+        O_new, e_new = _rotation_update(movs[m], ref, cfg, lambdas, rotation, up)
+        scored.append((min(e_new, cfg.energy), m, r, O_new if e_new < cfg.energy else cfg.O))
+    kept: dict[int, int] = {}
+    out = []
+    for _, m, r, O in sorted(scored, key=lambda x: x[0]):
+        if kept.get(m, 0) < KEEP_STARTS:
+            kept[m] = kept.get(m, 0) + 1
+            out.append((m, r, O))
+    return out
 
 
 def _index_order_match(mov: _Tree, ref: _Tree) -> dict[int, int]:
@@ -397,6 +423,8 @@ def register_to_reference(trees: Trees, reference: Trees, lambdas: Sequence[floa
         starts = [_initial_rotations(m, ref, rotation, up_t, n_starts, dp_opts) for m in movs]
         best: list[_Config | None] = [None] * len(movs)
         jobs = [(m, 0, O) for m, Os in enumerate(starts) for O in Os]
+        if rotation != "none" and max(len(Os) for Os in starts) > KEEP_STARTS:
+            jobs = _rank_starts(movs, ref, jobs, lam, dp_opts, prune, rotation, up_t)
         last = [math.inf] * len(jobs)
         for _ in range(max(max_iters, 1)):
             configs = _solve(movs, [ref], jobs, lam, dp_opts, prune)
@@ -418,6 +446,15 @@ def register_to_reference(trees: Trees, reference: Trees, lambdas: Sequence[floa
                 if not math.isfinite(prev) or e < prev - tol * prev:
                     nxt.append((m, 0, O_new))
                     nlast.append(e)
+            # only the KEEP_STARTS most promising starts of each pair keep alternating
+            kept: dict[int, int] = {}
+            sel: list[int] = []
+            for i in sorted(range(len(nxt)), key=lambda i: nlast[i]):
+                if kept.get(nxt[i][0], 0) < KEEP_STARTS:
+                    kept[nxt[i][0]] = kept.get(nxt[i][0], 0) + 1
+                    sel.append(i)
+            sel.sort()
+            nxt, nlast = [nxt[i] for i in sel], [nlast[i] for i in sel]
             if not nxt:
                 break
             jobs, last = nxt, nlast
