@@ -1,7 +1,8 @@
 """Registration of 3D trees on Pheno4D (consecutive days) vs the paper: time, distances, cycle consistency,
 and branch-correspondence accuracy on synthetic plants with ground truth.
 
-    python benchmarks/bench_trees.py [--T 64] [--rotation none] [--repeats 1] [--skip-cycle] [--skip-synthetic]
+    python benchmarks/bench_trees.py [--T 64] [--rotation none] [--source swc|mat] [--repeats 1]
+                                     [--skip-cycle] [--skip-synthetic] [--rows]
 """
 
 from __future__ import annotations
@@ -21,17 +22,20 @@ def main() -> None:
     p.add_argument("--T", type=int, default=64)
     p.add_argument("--rotation", default="none", choices=("none", "vertical", "so3"))
     p.add_argument("--repeats", type=int, default=1)
+    p.add_argument("--source", default="swc", choices=("swc", "mat"),
+                   help="raw SWC skeletons or the paper's hand-corrected .mat trees")
     p.add_argument("--skip-cycle", action="store_true")
     p.add_argument("--skip-synthetic", action="store_true")
     p.add_argument("--rows", action="store_true", help="print every pair")
     a = p.parse_args()
 
-    r = benchmark_trees(T=a.T, rotation=a.rotation, repeats=a.repeats)
+    r = benchmark_trees(T=a.T, rotation=a.rotation, repeats=a.repeats, source=a.source)
     if a.rows:
         for kind, name, sec, before, after, na, nb in r["rows"]:
             print(f"{kind:7s} {name:45s} {na:3d}->{nb:3d} branches {sec * 1e3:8.1f} ms "
                   f"d {before:7.2f} -> {after:7.2f}")
-    print(f"\nPheno4D consecutive-day pairs, T={a.T}, rotation={a.rotation} (paper: {PAPER_SECONDS} s per pair)")
+    print(f"\nPheno4D ({a.source}) consecutive-day pairs, T={a.T}, rotation={a.rotation} "
+          f"(paper: {PAPER_SECONDS} s per pair)")
     print(f"{'kind':8s} {'pairs':>5s} {'median ms':>10s} {'max ms':>9s} {'x paper':>8s} "
           f"{'d before':>9s} {'d after':>8s} {'improved':>9s}")
     for kind, s in list(r["per_kind"].items()) + [("all", r)]:
@@ -39,7 +43,7 @@ def main() -> None:
               f"{s['speedup_vs_paper']:8.0f} {s['distance_before_mean']:9.2f} {s['distance_after_mean']:8.2f} "
               f"{s['improved_pairs']:5d}/{s['pairs']}")
     if not a.skip_cycle:
-        c = benchmark_cycle_consistency(T=a.T, rotation=a.rotation)
+        c = benchmark_cycle_consistency(T=a.T, rotation=a.rotation, source=a.source)
         print("\ncycle consistency (share of points returning farther than eps * height; mean over pairs)")
         print(f"{'':16s}" + "".join(f"{'eps=' + str(e):>11s}" for e in c["eps"]))
         print(f"{'paper (mean)':16s}" + "".join(f"{100 * v:10.2f}%" for v in c["paper_mean"]))

@@ -32,21 +32,27 @@ def default_data_root() -> Path:
 
 
 def _kind(plant: str) -> str:
-    return "maize" if plant.lower().startswith("maize") else "tomato"
+    return "maize" if plant.lower().startswith("maize") else "tomato"  # Maize01, maize01_seq; tomato_1, tom_1_seq
 
 
 def consecutive_pairs(root: str | Path | None = None, T: int = 64, kinds: tuple[str, ...] = ("tomato", "maize"),
-                      max_pairs: int | None = None) -> list[tuple[str, str, Trees, Trees]]:
-    """``[(kind, name, day_k tree, day_k+1 tree), ...]`` from ``root/swc/<plant>/*.swc`` (sorted by name = date)."""
+                      max_pairs: int | None = None, source: str = "swc") -> list[tuple[str, str, Trees, Trees]]:
+    """``[(kind, name, day_k tree, day_k+1 tree), ...]`` sorted by file name (= date).
+
+    ``source="swc"``: the raw skeletons ``root/swc/<plant>/*.swc``; ``"mat"``: the hand-corrected trees
+    of the paper ``root/mat/<plant>_seq/*.mat`` (the ``_alt`` / ``_altered`` folders are skipped).
+    """
     import warnings
 
+    if source not in ("swc", "mat"):
+        raise ValueError(f"source must be 'swc' or 'mat', got {source!r}")
     root = Path(root) if root is not None else default_data_root()
     out: list[tuple[str, str, Trees, Trees]] = []
-    for plant in sorted(p for p in (root / "swc").iterdir() if p.is_dir()):
+    for plant in sorted(p for p in (root / source).iterdir() if p.is_dir()):
         kind = _kind(plant.name)
-        if kind not in kinds:
+        if kind not in kinds or (source == "mat" and not plant.name.endswith("_seq")):
             continue
-        files = sorted(plant.glob("*.swc"))
+        files = sorted(plant.glob(f"*.{source}"))
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # the reader reports repaired skeletons; not our business here
             trees = [read_tree(f, LoadOptions(T=T, repair=True, dtype=torch.float64)) for f in files]
@@ -75,7 +81,7 @@ def _summary(times: list[float], before: list[float], after: list[float]) -> dic
 
 def benchmark_trees(root: str | Path | None = None, T: int = 64, rotation: str = "none",
                     kinds: tuple[str, ...] = ("tomato", "maize"), repeats: int = 1, max_pairs: int | None = None,
-                    **kwargs: object) -> dict:
+                    source: str = "swc", **kwargs: object) -> dict:
     """Time :func:`register_trees` (day ``k+1`` onto day ``k``) on all consecutive-day Pheno4D pairs.
 
     Returns ``{"pairs", "median_s", "max_s", "speedup_vs_paper", ... , "per_kind": {kind: {...}},
@@ -83,7 +89,7 @@ def benchmark_trees(root: str | Path | None = None, T: int = 64, rotation: str =
     The time of a pair is the best of ``repeats`` runs (the machine may be shared). A warm-up
     registration compiles the numba kernels first.
     """
-    pairs = consecutive_pairs(root, T, kinds, max_pairs)
+    pairs = consecutive_pairs(root, T, kinds, max_pairs, source)
     if not pairs:
         raise FileNotFoundError(f"no Pheno4D pairs found under {root or default_data_root()}")
     register_trees(pairs[0][3], pairs[0][2], rotation=rotation, **kwargs)  # warm-up (JIT)
@@ -106,7 +112,7 @@ def benchmark_trees(root: str | Path | None = None, T: int = 64, rotation: str =
 
 def benchmark_cycle_consistency(root: str | Path | None = None, T: int = 64, rotation: str = "none",
                                 kinds: tuple[str, ...] = ("tomato", "maize"), max_pairs: int | None = None,
-                                **kwargs: object) -> dict:
+                                source: str = "swc", **kwargs: object) -> dict:
     """Cycle consistency (paper Table 2) over the consecutive-day Pheno4D pairs, per eps, vs the paper.
 
     Returns ``{"eps": [...], "mean": [...], "median": [...], "std": [...], "paper_mean": [...],
@@ -118,7 +124,7 @@ def benchmark_cycle_consistency(root: str | Path | None = None, T: int = 64, rot
     from .correspondence import DEFAULT_EPS, PAPER_CYCLE_ERRORS, cycle_consistency
 
     rows = []
-    for kind, name, a, b in consecutive_pairs(root, T, kinds, max_pairs):
+    for kind, name, a, b in consecutive_pairs(root, T, kinds, max_pairs, source):
         fwd = register_trees(a, b, rotation=rotation, **kwargs)
         bwd = register_trees(b, a, rotation=rotation, **kwargs)
         cc = cycle_consistency(a, b, DEFAULT_EPS, forward=fwd, backward=bwd)
