@@ -254,11 +254,12 @@ def test_synthetic_plants_correspondence():
 
 
 def test_pheno4d_consecutive_days():
-    from torch4dtree.bench_trees import consecutive_pairs, default_data_root
+    from conftest import PHENO4D, pheno4d
 
-    if not (default_data_root() / "swc").exists():
-        pytest.skip("Pheno4D data not found")
-    pairs = consecutive_pairs(T=T, max_pairs=None)
+    from torch4dtree.bench_trees import consecutive_pairs
+
+    pheno4d("swc")  # skips (fails in CI) without the data
+    pairs = consecutive_pairs(PHENO4D, T=T, max_pairs=None)
     picked = [p for p in pairs if p[1].startswith(("Tomato_4:T04_0311", "tomato_2:T02_0311", "Maize01:M01_0319"))]
     assert picked
     for _, name, a, b in picked:

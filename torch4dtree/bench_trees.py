@@ -8,6 +8,7 @@ distances before (index order) and after registration.
 
 from __future__ import annotations
 
+import os
 import statistics
 import time
 from pathlib import Path
@@ -27,8 +28,9 @@ PAPER_SECONDS = 2.3
 
 
 def default_data_root() -> Path:
-    """``<repo>/../shared/data/pheno4d`` (where the project keeps the real data)."""
-    return Path(__file__).resolve().parents[2] / "shared" / "data" / "pheno4d"
+    """``$TORCH4DTREE_PHENO4D`` if set, else ``<repo>/../shared/data/pheno4d`` (where the project keeps it)."""
+    env = os.environ.get("TORCH4DTREE_PHENO4D")
+    return Path(env) if env else Path(__file__).resolve().parents[2] / "shared" / "data" / "pheno4d"
 
 
 def _kind(plant: str) -> str:
