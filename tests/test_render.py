@@ -16,7 +16,7 @@ import torch
 pytest.importorskip("pyrender")
 imageio = pytest.importorskip("imageio.v2")
 
-from conftest import PHENO4D  # noqa: E402
+from conftest import PHENO4D, pheno4d  # noqa: E402
 
 from torch4dtree import Trees, TreeSequence  # noqa: E402
 from torch4dtree.io import LoadOptions, read_sequence  # noqa: E402
@@ -79,7 +79,7 @@ def border(mask: np.ndarray) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def maize() -> TreeSequence:
-    return read_sequence(PHENO4D / "swc" / "Maize02", LoadOptions(T=32, repair=True)).sequence
+    return read_sequence(pheno4d("swc", "Maize02"), LoadOptions(T=32, repair=True)).sequence
 
 
 def growing_sequence(n: int = 4) -> TreeSequence:
@@ -238,7 +238,7 @@ def cli(*argv: str) -> int:
 
 
 def test_cli_tree_sequence_and_dataset(tmp_path: Path, capsys):
-    folder = PHENO4D / "swc" / "Maize02"
+    folder = pheno4d("swc", "Maize02")
     tree_file = sorted(folder.glob("*.swc"))[-1]
     out = tmp_path / "tree.png"
     assert cli(str(tree_file), "--out", str(out), "--size", "96", "--T", "16") == 0

@@ -169,7 +169,9 @@ def benchmark_curves(pairs: int = 1000, T: int = 100, fdasrsf_pairs: int = 40, s
         ``None`` when it is not importable.
     """
     if pheno4d is None:
-        pheno4d = Path(__file__).resolve().parents[2] / "shared" / "data" / "pheno4d" / "swc"
+        from .bench_trees import default_data_root
+
+        pheno4d = default_data_root() / "swc"
     cf = _fdasrsf()
     g = torch.Generator().manual_seed(seed)
     kw = {"rotation": "so3", **register_kw}
