@@ -29,3 +29,14 @@ def test_main_command_uses_only_existing_subcommands():
     choices = build_parser()._subparsers._group_actions[0].choices
     for used in re.findall(r"torch4dtree (\w+)", main_cmd):
         assert used in choices, used
+
+
+def test_readme_python_example_runs(tmp_path, monkeypatch):
+    from conftest import pheno4d
+
+    pheno4d("swc", "Tomato_3")
+    code = next(b for b in re.findall(r"```python\n(.*?)\n```", (ROOT / "README.md").read_text(), flags=re.S))
+    code = code.replace('"../shared/data/pheno4d/', f'"{ROOT.parent}/shared/data/pheno4d/')
+    monkeypatch.chdir(tmp_path)
+    exec(compile(code, "README.md", "exec"), {})
+    assert (tmp_path / "morph.png").stat().st_size > 1000
