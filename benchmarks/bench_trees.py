@@ -11,6 +11,7 @@ import argparse
 
 from torch4dtree.bench_trees import (
     PAPER_SECONDS,
+    benchmark_cross_plant_accuracy,
     benchmark_cycle_consistency,
     benchmark_synthetic_accuracy,
     benchmark_trees,
@@ -59,6 +60,12 @@ def main() -> None:
             print(f"{kind:8s} pairs {v['pairs']:3d}  accuracy mean {100 * v['accuracy_mean']:.1f}% "
                   f"min {100 * v['accuracy_min']:.1f}%  median {v['median_s'] * 1e3:.1f} ms  cycle error "
                   + " ".join(f"{100 * e:.2f}%" for e in v["cycle_error_mean"]))
+        x = benchmark_cross_plant_accuracy()
+        print("\nsynthetic plants, different plants of one kind at the same frame (vertical rotation)")
+        for kind, v in x.items():
+            frames = "  ".join(f"frame {f}: {100 * m:.0f}%" for f, m in v["per_frame"].items())
+            print(f"{kind:8s} pairs {v['pairs']:3d}  accuracy mean {100 * v['accuracy_mean']:.1f}% "
+                  f"min {100 * v['accuracy_min']:.1f}%  ({frames})")
 
 
 if __name__ == "__main__":

@@ -292,3 +292,14 @@ def test_invariance_with_default_settings_moderate_warps():
     B = transformed_copy(A, torch.Generator().manual_seed(14), "vertical", strength=0.5)
     r = register_trees(B, A, rotation="vertical")
     assert float(r.distance) < 0.12 * _tree_norm(A) and branch_accuracy(r, B, A) == 1.0
+
+
+def test_synthetic_maize_plants_correspond_across_plants():
+    """Different maize plants (leaves at plant-specific heights and azimuths): leaf k matches leaf k."""
+    data = pytest.importorskip("torch4dtree.data")
+    plants = data.synthetic_dataset("maize", 3, 0, n_frames=6, T=T, dtype=torch.float64)
+    accs = []
+    for a, b in ((0, 1), (0, 2), (1, 2)):
+        fa, fb = plants[a].sequence.frames[5], plants[b].sequence.frames[5]
+        accs.append(branch_accuracy(register_trees(fa, fb, rotation="vertical"), fa, fb))
+    assert min(accs) >= 0.95, accs

@@ -171,3 +171,34 @@ def benchmark_synthetic_accuracy(kinds: tuple[str, ...] = ("tomato", "maize"), s
         out[kind] = {"pairs": len(acc), "accuracy_mean": float(np.mean(acc)), "accuracy_min": float(np.min(acc)),
                      "median_s": statistics.median(times), "cycle_error_mean": np.mean(cyc, 0).tolist()}
     return out
+
+
+def benchmark_cross_plant_accuracy(kinds: tuple[str, ...] = ("tomato", "maize"), plants: int = 4, seed: int = 0,
+                                   frames: tuple[int, ...] = (3, 6, 9), T: int = 32, n_frames: int = 10,
+                                   rotation: str = "vertical", **kwargs: object) -> dict:
+    """Branch-correspondence accuracy between different plants of one kind, at the same frame index.
+
+    Plants of a kind share branch identities (leaf ``k`` is the k-th leaf from the bottom), but their
+    leaves sit at plant-specific heights and azimuths, so ``rotation`` defaults to ``vertical``.
+    Returns ``{kind: {"pairs", "accuracy_mean", "accuracy_min", "per_frame": {frame: mean}}}``.
+    """
+    import numpy as np
+
+    from .correspondence import branch_accuracy
+    from .data import synthetic_dataset
+
+    out = {}
+    for kind in kinds:
+        seqs = [p.sequence.frames for p in synthetic_dataset(kind, plants, seed, n_frames=n_frames, T=T,
+                                                             dtype=torch.float64)]
+        per_frame: dict[int, float] = {}
+        acc: list[float] = []
+        for f in frames:
+            here = [branch_accuracy(register_trees(seqs[a][f], seqs[b][f], rotation=rotation, **kwargs),
+                                    seqs[a][f], seqs[b][f])
+                    for a in range(plants) for b in range(a + 1, plants)]
+            per_frame[f] = float(np.mean(here))
+            acc += here
+        out[kind] = {"pairs": len(acc), "accuracy_mean": float(np.mean(acc)), "accuracy_min": float(np.min(acc)),
+                     "per_frame": per_frame}
+    return out
