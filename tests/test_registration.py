@@ -163,7 +163,7 @@ def test_added_branch_costs_its_length():
     extra = int((B.label == int(B.num_branches[0]) - 1).nonzero()[0])
     length = float(B.branch_lengths()[extra])
     for ls in (1.0, 2.0):
-        r = register_trees(B, A, lambdas=(1.0, 1.0, ls))
+        r = register_trees(B, A, lambdas=(1.0, ls, 1.0))
         assert r.unmatched_moving == [extra] and r.unmatched_reference == []
         assert float(r.distance) ** 2 == pytest.approx(ls * length, rel=0.05)
 
@@ -172,7 +172,7 @@ def test_added_branch_costs_its_length():
 
 
 def _recursive_sq(al: AlignedTrees, slot: int) -> float:
-    lm, lp, ls = al.lambdas
+    lm, ls, lp = al.lambdas
     out = lm * float(srvf_sq_norm(al.q[0, slot] - al.q[1, slot]))
     for c in (al.slot_parent == slot).nonzero()[:, 0].tolist():
         out += lp * float(al.s[0, c] - al.s[1, c]) ** 2 + ls * _recursive_sq(al, c)

@@ -29,7 +29,7 @@ Lambdas = tuple[float, float, float]
 
 def slot_weights(slot_depth: Tensor, lambdas: Lambdas) -> tuple[Tensor, Tensor]:
     """Metric weights per slot: ``(w_q (S,), w_s (S,))`` with ``w_s = 0`` at the main branch."""
-    lm, lp, ls = lambdas
+    lm, ls, lp = lambdas
     depth = slot_depth.to(torch.float64)
     w_q = lm * torch.pow(torch.as_tensor(ls, dtype=torch.float64), depth)
     w_s = torch.where(depth >= 1, lp * torch.pow(torch.as_tensor(ls, dtype=torch.float64), depth - 1),
@@ -43,7 +43,7 @@ def subtree_sq_norms(lengths: Sequence[float], parent: Sequence[int], lambdas: L
     ``lengths[i] = ||q_i||^2`` (branch length), ``parent[i]`` within the same list (parents first).
     This is the squared distance of subtree ``i`` to the null tree.
     """
-    lm, _, ls = lambdas
+    lm, ls, _ = lambdas
     out = [lm * float(x) for x in lengths]
     for i in range(len(parent) - 1, -1, -1):  # children after parents: accumulate bottom-up
         p = parent[i]
@@ -64,7 +64,7 @@ class AlignedTrees:
         slot_parent: ``(S,)`` long, parent slot (``-1`` for slot 0); parents come first.
         slot_depth: ``(S,)`` long, layer of each slot (0 = main branch).
         source: ``(n, S)`` long, index of the original branch (within its tree) or ``-1``.
-        lambdas: ``(lm, lp, ls)`` metric weights.
+        lambdas: ``(lm, ls, lp)`` metric weights (SPEC §3 order).
     """
 
     q: Tensor
