@@ -25,7 +25,6 @@ import argparse
 import math
 import os
 import sys
-import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
@@ -33,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from .io.files import write_bytes_safely
+from .io.files import publish_file, temporary_path, write_bytes_safely
 from .structures import DEFAULT_T, TreeError, Trees, TreeSequence
 
 __all__ = [
@@ -749,23 +748,6 @@ def save_frames(folder: str | Path, frames: np.ndarray, overwrite: bool = False,
     return [save_image(p, f, overwrite) for p, f in zip(paths, arr)]
 
 
-def _publish(tmp: Path, path: Path, overwrite: bool) -> None:
-    """Move a finished temporary file to ``path``; without ``overwrite`` never replaces an existing file."""
-    if overwrite:
-        os.replace(tmp, path)
-        return
-    try:
-        os.link(tmp, path)  # atomic "create only if absent"
-    except FileExistsError:
-        raise FileExistsError(f"{path} exists; pass overwrite=True (--overwrite) to replace it") from None
-    except OSError:  # a file system without hard links
-        if path.exists():
-            raise FileExistsError(f"{path} exists; pass overwrite=True (--overwrite) to replace it") from None
-        os.replace(tmp, path)
-        return
-    tmp.unlink()
-
-
 def _gif_bytes(frames: np.ndarray, fps: float) -> bytes:
     """A looping GIF of ``(n, H, W, 3)`` frames, one GIF frame per input frame.
 
@@ -814,10 +796,7 @@ def save_video(path: str | Path, frames: np.ndarray, fps: float = 4.0, overwrite
 
     arr = _even(arr)
     n, H, W, _ = arr.shape
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".mp4")
-    os.close(fd)
-    tmp = Path(tmp_name)
+    tmp = temporary_path(path)
     try:
         writer = imageio_ffmpeg.write_frames(
             str(tmp), (W, H), fps=fps, codec="libx264", pix_fmt_in="rgb24", pix_fmt_out="yuv420p",
@@ -828,7 +807,7 @@ def save_video(path: str | Path, frames: np.ndarray, fps: float = 4.0, overwrite
         for f in arr:
             writer.send(f.tobytes())
         writer.close()
-        _publish(tmp, path, overwrite)
+        publish_file(tmp, path, overwrite)
     finally:
         tmp.unlink(missing_ok=True)
     return path

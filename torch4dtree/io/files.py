@@ -7,6 +7,39 @@ import tempfile
 from pathlib import Path
 
 
+def _exists_error(path: Path) -> FileExistsError:
+    return FileExistsError(f"{path} exists; pass overwrite=True (--overwrite) to replace it")
+
+
+def publish_file(tmp: Path, path: Path, overwrite: bool = False) -> None:
+    """Move a finished temporary file (same folder) to ``path``.
+
+    Without ``overwrite`` an existing file is never replaced, even one that appears meanwhile: a hard
+    link is an atomic "create only if absent" (with a checked rename where links are unsupported).
+    """
+    if overwrite:
+        os.replace(tmp, path)
+        return
+    try:
+        os.link(tmp, path)
+    except FileExistsError:
+        raise _exists_error(path) from None
+    except OSError:  # a file system without hard links
+        if path.exists():
+            raise _exists_error(path) from None
+        os.replace(tmp, path)
+        return
+    tmp.unlink()
+
+
+def temporary_path(path: Path) -> Path:
+    """A new empty temporary file beside ``path`` (the folder is created if needed)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=path.suffix or ".tmp")
+    os.close(fd)
+    return Path(tmp)
+
+
 def write_bytes_safely(path: Path, data: bytes, overwrite: bool = False) -> Path:
     """Write ``data`` to ``path`` atomically; refuse to replace an existing file unless ``overwrite``.
 
@@ -15,18 +48,13 @@ def write_bytes_safely(path: Path, data: bytes, overwrite: bool = False) -> Path
     """
     path = Path(path)
     if path.exists() and not overwrite:
-        raise FileExistsError(f"{path} exists; pass overwrite=True (--overwrite) to replace it")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+        raise _exists_error(path)
+    tmp = temporary_path(path)
     try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        if not overwrite and path.exists():  # appeared while we were writing
-            raise FileExistsError(f"{path} exists; pass overwrite=True (--overwrite) to replace it")
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+        tmp.write_bytes(data)
+        publish_file(tmp, path, overwrite)
+    finally:
+        tmp.unlink(missing_ok=True)
     return path
 
 
