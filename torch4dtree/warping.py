@@ -271,12 +271,23 @@ if HAVE_NUMBA:
                 sv = SS[s, j0 - b : jh + 1 - b]
                 for t in range(nj):
                     tv[t] = sv[t]
-                for r in range(a):
-                    for c in range(d):
-                        w = q1[k + r, c]
-                        rv = QW[off[s] + r, c, j0 - b : jh + 1 - b]
+                if d == 3:  # the common case: one pass per sub-segment (same arithmetic order)
+                    for r in range(a):
+                        w0 = q1[k + r, 0]
+                        w1 = q1[k + r, 1]
+                        w2 = q1[k + r, 2]
+                        r0 = QW[off[s] + r, 0, j0 - b : jh + 1 - b]
+                        r1 = QW[off[s] + r, 1, j0 - b : jh + 1 - b]
+                        r2 = QW[off[s] + r, 2, j0 - b : jh + 1 - b]
                         for t in range(nj):
-                            tv[t] -= w * rv[t]
+                            tv[t] = tv[t] - w0 * r0[t] - w1 * r1[t] - w2 * r2[t]
+                else:
+                    for r in range(a):
+                        for c in range(d):
+                            w = q1[k + r, c]
+                            rv = QW[off[s] + r, c, j0 - b : jh + 1 - b]
+                            for t in range(nj):
+                                tv[t] -= w * rv[t]
                 ev = E[k, j0 - b : jh + 1 - b]
                 ei = E[i, j0 : jh + 1]
                 av = arg[i, j0 : jh + 1]
@@ -661,6 +672,71 @@ if HAVE_NUMBA:
         for p in range(Bn):
             energy[p], before[p] = _nb_register_one(q1[p], q2[p], A, Bs, Af, Bf, cfg, up, tol, gamma[p], O[p])
         return energy, before, gamma, O
+
+    @numba.njit(cache=True, boundscheck=False)
+    def _nb_curves_one(mov: np.ndarray, ref: np.ndarray, srvf_input: bool, A: np.ndarray, Bs: np.ndarray,
+                       Af: np.ndarray, Bf: np.ndarray, cfg: np.ndarray, up: np.ndarray, tol: float,
+                       gamma: np.ndarray, O: np.ndarray, registered: np.ndarray,
+                       q_reg: np.ndarray) -> tuple[float, float]:
+        """The whole of ``register_curves`` for one pair without gradients: input prep (inverse SRVF,
+        resampling, SRVFs), ``_nb_register_one`` and the registered curve; returns (energy, identity energy).
+
+        ``mov (T2, d)``, ``ref (T, d)`` are curves (SRVFs ``(T2-1, d)``, ``(T-1, d)`` if ``srvf_input``).
+        """
+        if srvf_input:
+            beta_r = _nb_inverse_from(ref)
+            beta_m = _nb_inverse_from(mov)
+        else:
+            beta_r = ref
+            beta_m = mov
+        T, d = beta_r.shape
+        if beta_m.shape[0] != T:
+            beta_m = _nb_resample(beta_m, T)
+        q_ref = np.empty((T - 1, d))
+        q_mov = np.empty((T - 1, d))
+        _nb_srvf(beta_r, q_ref)
+        _nb_srvf(beta_m, q_mov)
+        _, before = _nb_register_one(q_ref, q_mov, A, Bs, Af, Bf, cfg, up, tol, gamma, O)
+        bw = np.empty((T, d))
+        _nb_interp(beta_m, gamma, bw)
+        for m in range(T):
+            for c in range(d):
+                x = 0.0
+                for c2 in range(d):
+                    x += bw[m, c2] * O[c, c2]
+                registered[m, c] = x
+        for m in range(T - 1, -1, -1):
+            for c in range(d):
+                registered[m, c] = registered[m, c] - registered[0, c] + beta_r[0, c]
+        _nb_srvf(registered, q_reg)
+        e = 0.0
+        for m in range(T - 1):
+            for c in range(d):
+                x = q_ref[m, c] - q_reg[m, c]
+                e += x * x
+        return e / (T - 1), before
+
+    @numba.njit(cache=True, parallel=True, boundscheck=False)
+    def _nb_curves_batch(mov: np.ndarray, ref: np.ndarray, srvf_input: bool, A: np.ndarray, Bs: np.ndarray,
+                         Af: np.ndarray, Bf: np.ndarray, cfg: np.ndarray, up: np.ndarray, tol: float,
+                         chunks: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                                                  np.ndarray]:
+        """``_nb_curves_one`` over a batch, split into ``chunks`` interleaved chunks run in parallel."""
+        Bn = ref.shape[0]
+        T = ref.shape[1] + (1 if srvf_input else 0)
+        d = ref.shape[2]
+        energy = np.empty(Bn)
+        before = np.empty(Bn)
+        gamma = np.empty((Bn, T))
+        O = np.empty((Bn, d, d))
+        registered = np.empty((Bn, T, d))
+        q_reg = np.empty((Bn, T - 1, d))
+        nch = max(min(chunks, Bn), 1)
+        for ch in numba.prange(nch):
+            for p in range(ch, Bn, nch):  # interleaved: neighbouring pairs often cost alike
+                energy[p], before[p] = _nb_curves_one(mov[p], ref[p], srvf_input, A, Bs, Af, Bf, cfg, up, tol,
+                                                      gamma[p], O[p], registered[p], q_reg[p])
+        return energy, before, gamma, O, registered, q_reg
 
     @numba.njit(cache=True, parallel=True, boundscheck=False)
     def _nb_dp_batch(q1: np.ndarray, beta2: np.ndarray, A: np.ndarray, Bs: np.ndarray, lo: np.ndarray,
@@ -1053,6 +1129,26 @@ def _register_numba(q1: Tensor, q2: Tensor, rotation: str, up: Tensor,
     return tuple(torch.from_numpy(x).to(q1.device, q1.dtype) for x in out)  # type: ignore[return-value]
 
 
+def _register_curves_numba(moving: Tensor, reference: Tensor, srvf_input: bool, rotation: str, up: Tensor,
+                           cfg: _Settings) -> CurveRegistration:
+    """``register_curves`` without gradients in one numba call (input prep and outputs included)."""
+    A, Bs = _step_arrays(cfg.neighbourhood)
+    Af, Bf = _step_arrays(cfg.band_neighbourhood)
+    ints = np.array([cfg.neighbourhood, -1 if cfg.band is None else cfg.band,
+                     1 << 30 if cfg.coarse is None else cfg.coarse, _MODES[rotation], cfg.max_iters,
+                     cfg.refine, cfg.starts, cfg.band_neighbourhood, cfg.fine_iters], np.int64)
+    mov = moving.detach().to("cpu", torch.float64).contiguous().numpy()
+    ref = reference.detach().to("cpu", torch.float64).contiguous().numpy()
+    upn = up.detach().to("cpu", torch.float64).contiguous().numpy()
+    chunks = numba.get_num_threads() if len(ref) >= PARALLEL_MIN_PAIRS else 1
+    energy, before, gamma, O, reg, q_reg = _nb_curves_batch(mov, ref, srvf_input, A, Bs, Af, Bf, ints, upn,
+                                                            float(cfg.tol), chunks)
+    distance = np.sqrt(np.maximum(energy, 0.0))
+    dt, dev = reference.dtype, reference.device
+    return CurveRegistration(*(torch.from_numpy(x).to(dev, dt)
+                               for x in (gamma, O, distance, energy, before, reg, q_reg)))
+
+
 def _check_inputs(moving: Tensor, reference: Tensor, min_points: int,
                   what: str) -> tuple[Tensor, Tensor, bool]:
     """Validate a pair of batched (or single) inputs; returns them batched and whether they were single."""
@@ -1171,14 +1267,18 @@ def register_curves(moving: Tensor, reference: Tensor, rotation: str = "none", s
         coarse = max(coarse, 4 * moving.shape[-1])
     cfg = _settings(neighbourhood, band, coarse, band_neighbourhood, max_iters, fine_iters, tol, refine,
                     starts)
+    up_t = torch.as_tensor((0.0, 0.0, 1.0) if up is None else up, dtype=reference.dtype, device=reference.device)
+    if up_t.shape != (3,) or not bool(up_t.norm() > 0):
+        raise ValueError(f"up must be a nonzero 3-vector, got {up}")
+    be = _pick_backend(backend, reference)
+    if be == "numba" and not (torch.is_grad_enabled() and (moving.requires_grad or reference.requires_grad)):
+        # no gradient wanted: the whole registration (input prep and outputs too) in one numba call
+        out = _register_curves_numba(moving, reference, srvf_input, rotation, up_t, cfg)
+        return CurveRegistration(*(x[0] for x in out)) if single else out
     beta_m, beta_r = (inverse_srvf(moving), inverse_srvf(reference)) if srvf_input else (moving, reference)
     T = beta_r.shape[1]
     beta_m = _resample_curve(beta_m, T)
     q_ref, q_mov = srvf(beta_r), srvf(beta_m)
-    up_t = torch.as_tensor((0.0, 0.0, 1.0) if up is None else up, dtype=q_ref.dtype, device=q_ref.device)
-    if up_t.shape != (3,) or not bool(up_t.norm() > 0):
-        raise ValueError(f"up must be a nonzero 3-vector, got {up}")
-    be = _pick_backend(backend, q_ref)
     fn = _register_numba if be == "numba" else _register_torch
     with torch.no_grad():
         _, before, gamma, O = fn(q_ref.detach(), q_mov.detach(), rotation, up_t, cfg)
