@@ -466,6 +466,72 @@ if HAVE_NUMBA:
             e += x * x
         return e
 
+    @numba.njit(cache=True, boundscheck=False, inline="always")
+    def _nb_seg3(q1: np.ndarray, m: int, a0: float, a1: float, a2: float, b0: float, b1: float, b2: float,
+                 M: int) -> float:
+        """``_nb_seg`` for d = 3 on scalars (the same operations in the same order)."""
+        v0 = (b0 - a0) * M
+        v1 = (b1 - a1) * M
+        v2 = (b2 - a2) * M
+        nv = v0 * v0 + v1 * v1 + v2 * v2
+        sc = M / math.sqrt(math.sqrt(nv)) if nv > 0 else 0.0
+        x0 = q1[m, 0] - (b0 - a0) * sc
+        x1 = q1[m, 1] - (b1 - a1) * sc
+        x2 = q1[m, 2] - (b2 - a2) * sc
+        return x0 * x0 + x1 * x1 + x2 * x2
+
+    @numba.njit(cache=True, boundscheck=False)
+    def _nb_refine3(q1: np.ndarray, beta2: np.ndarray, gamma: np.ndarray, sweeps: int, steps: int) -> None:
+        """``_nb_refine`` for d = 3 (scalar code: no temporary arrays), same results."""
+        M = q1.shape[0]
+        for _ in range(sweeps):
+            for parity in range(1, 3):
+                for m in range(parity, M, 2):
+                    a = gamma[m - 1]
+                    b = gamma[m + 1]
+                    cur = gamma[m]
+                    y = min(max(a, 0.0), 1.0) * M
+                    f = min(math.floor(y), M - 1)
+                    r = y - f
+                    a0 = beta2[f, 0] + r * (beta2[f + 1, 0] - beta2[f, 0])
+                    a1 = beta2[f, 1] + r * (beta2[f + 1, 1] - beta2[f, 1])
+                    a2 = beta2[f, 2] + r * (beta2[f + 1, 2] - beta2[f, 2])
+                    y = min(max(b, 0.0), 1.0) * M
+                    f = min(math.floor(y), M - 1)
+                    r = y - f
+                    b0 = beta2[f, 0] + r * (beta2[f + 1, 0] - beta2[f, 0])
+                    b1 = beta2[f, 1] + r * (beta2[f + 1, 1] - beta2[f, 1])
+                    b2 = beta2[f, 2] + r * (beta2[f + 1, 2] - beta2[f, 2])
+                    y = min(max(cur, 0.0), 1.0) * M
+                    f = min(math.floor(y), M - 1)
+                    r = y - f
+                    x0 = beta2[f, 0] + r * (beta2[f + 1, 0] - beta2[f, 0])
+                    x1 = beta2[f, 1] + r * (beta2[f + 1, 1] - beta2[f, 1])
+                    x2 = beta2[f, 2] + r * (beta2[f + 1, 2] - beta2[f, 2])
+                    fcur = _nb_seg3(q1, m - 1, a0, a1, a2, x0, x1, x2, M) + _nb_seg3(q1, m, x0, x1, x2, b0, b1, b2, M)
+                    delta = 0.25 * (b - a)
+                    for _ in range(steps):
+                        best = cur
+                        fbest = fcur
+                        for sign in (-1.0, 1.0):
+                            x = cur + sign * delta
+                            if a <= x <= b:
+                                y = min(max(x, 0.0), 1.0) * M
+                                f = min(math.floor(y), M - 1)
+                                r = y - f
+                                x0 = beta2[f, 0] + r * (beta2[f + 1, 0] - beta2[f, 0])
+                                x1 = beta2[f, 1] + r * (beta2[f + 1, 1] - beta2[f, 1])
+                                x2 = beta2[f, 2] + r * (beta2[f + 1, 2] - beta2[f, 2])
+                                fx = (_nb_seg3(q1, m - 1, a0, a1, a2, x0, x1, x2, M)
+                                      + _nb_seg3(q1, m, x0, x1, x2, b0, b1, b2, M))
+                                if fx < fbest:
+                                    best = x
+                                    fbest = fx
+                        cur = best
+                        fcur = fbest
+                        delta *= 0.5
+                    gamma[m] = cur
+
     @numba.njit(cache=True, boundscheck=False)
     def _nb_refine(q1: np.ndarray, beta2: np.ndarray, gamma: np.ndarray, sweeps: int, steps: int) -> None:
         """Lower the energy by moving single warp nodes inside their neighbours' interval (red-black sweeps).
@@ -474,6 +540,9 @@ if HAVE_NUMBA:
         warp stays monotone with fixed ends and the energy never increases.
         """
         M, d = q1.shape
+        if d == 3:
+            _nb_refine3(q1, beta2, gamma, sweeps, steps)
+            return
         pa = np.empty(d)
         pb = np.empty(d)
         px = np.empty(d)
@@ -505,24 +574,31 @@ if HAVE_NUMBA:
                     gamma[m] = cur
 
     @numba.njit(cache=True, boundscheck=False)
-    def _nb_alternate(q1: np.ndarray, beta2: np.ndarray, A: np.ndarray, Bs: np.ndarray, n: int, band: int,
-                      mode: int, up: np.ndarray, max_iters: int, tol: float, refine: int, O0: np.ndarray,
-                      init: np.ndarray, gamma: np.ndarray, O: np.ndarray) -> float:
+    def _nb_alternate(q1: np.ndarray, beta2: np.ndarray, QW: np.ndarray, SS: np.ndarray, off: np.ndarray,
+                      A: np.ndarray, Bs: np.ndarray, n: int, band: int, mode: int, up: np.ndarray, max_iters: int,
+                      tol: float, refine: int, O0: np.ndarray, init: np.ndarray, gamma: np.ndarray,
+                      O: np.ndarray) -> float:
         """Alternate DP warps and optimal rotations on one grid, from rotation ``O0`` (and warp ``init``).
 
         Writes the best ``gamma`` and ``O`` seen and returns their energy. The DP runs on ``(q1 O, q2)``
-        (the same energy as ``(q1, O q2)``) so the tables of ``q2`` are built once.
+        (the same energy as ``(q1, O q2)``) so the tables of ``q2`` (``_nb_make_tables``) are built once
+        per grid and shared by all rounds and starts.
         """
         M, d = q1.shape
-        QW, SS, off = _nb_make_tables(beta2, A, Bs)
         eye = np.eye(d)
         best = np.inf
         Ocur = O0.copy()
         prev = init
         g = np.empty(M + 1)
+        q1r = np.empty((M, d))
         last = np.inf
         for _ in range(max(max_iters, 1)):
-            q1r = np.ascontiguousarray(q1 @ Ocur)
+            for m in range(M):
+                for c in range(d):
+                    x = 0.0
+                    for c2 in range(d):
+                        x += q1[m, c2] * Ocur[c2, c]
+                    q1r[m, c] = x
             e = _nb_dp_search(q1r, QW, SS, off, A, Bs, n, band, prev, g)
             if refine > 0:
                 if prev.shape[0] == M + 1 and _nb_energy(q1r, beta2, prev, eye) < e:
@@ -627,14 +703,14 @@ if HAVE_NUMBA:
             eL = np.inf
             gk = np.empty(ML + 1)
             Ok = np.empty((d, d))
+            AL = A if top else Af
+            BL = Bs if top else Bf
+            QW, SS, off = _nb_make_tables(b2L, AL, BL)
             for k in range(max(nst, 1)):
                 O0 = _nb_start_rotation(Ocur, mode, up, k, nst)
-                if top:
-                    ek = _nb_alternate(q1L, b2L, A, Bs, n, band, mode, up, max_iters, tol,
-                                       refine if lev == 0 else 0, O0, init, gk, Ok)
-                else:
-                    ek = _nb_alternate(q1L, b2L, Af, Bf, nf, band, mode, up, fine_iters, tol,
-                                       refine if lev == 0 else 0, O0, init, gk, Ok)
+                ek = _nb_alternate(q1L, b2L, QW, SS, off, AL, BL, n if top else nf, band, mode, up,
+                                   max_iters if top else fine_iters, tol, refine if lev == 0 else 0, O0, init,
+                                   gk, Ok)
                 if ek < eL:
                     eL = ek
                     gL[:] = gk
