@@ -383,6 +383,75 @@ if HAVE_NUMBA:
         return e / M
 
     @numba.njit(cache=True, boundscheck=False)
+    def _nb_kabsch3(A: np.ndarray) -> np.ndarray:
+        """Proper rotation ``O (3, 3)`` maximising ``tr(O A^T)`` (Horn's quaternion method: the top
+        eigenvector of a symmetric 4 x 4 matrix by cyclic Jacobi). The same optimum as the SVD route,
+        without a LAPACK call and its copies."""
+        N = np.empty((4, 4))
+        sxx, sxy, sxz = A[0, 0], A[1, 0], A[2, 0]
+        syx, syy, syz = A[0, 1], A[1, 1], A[2, 1]
+        szx, szy, szz = A[0, 2], A[1, 2], A[2, 2]
+        N[0, 0], N[0, 1], N[0, 2], N[0, 3] = sxx + syy + szz, syz - szy, szx - sxz, sxy - syx
+        N[1, 1], N[1, 2], N[1, 3] = sxx - syy - szz, sxy + syx, szx + sxz
+        N[2, 2], N[2, 3] = -sxx + syy - szz, syz + szy
+        N[3, 3] = -sxx - syy + szz
+        for i in range(4):
+            for j in range(i):
+                N[i, j] = N[j, i]
+        V = np.eye(4)
+        for _ in range(50):
+            off = 0.0
+            scale = 0.0
+            for i in range(4):
+                scale += N[i, i] * N[i, i]
+                for j in range(i + 1, 4):
+                    off += N[i, j] * N[i, j]
+            if off <= 1e-32 * scale or off == 0.0:
+                break
+            for p in range(3):
+                for q in range(p + 1, 4):
+                    apq = N[p, q]
+                    if apq == 0.0:
+                        continue
+                    theta = (N[q, q] - N[p, p]) / (2.0 * apq)
+                    t = (1.0 if theta >= 0 else -1.0) / (abs(theta) + math.sqrt(theta * theta + 1.0))
+                    c = 1.0 / math.sqrt(t * t + 1.0)
+                    sn = t * c
+                    for k in range(4):  # N <- N J (columns p, q)
+                        akp = N[k, p]
+                        akq = N[k, q]
+                        N[k, p] = c * akp - sn * akq
+                        N[k, q] = sn * akp + c * akq
+                    for k in range(4):  # N <- J^T N (rows p, q)
+                        apk = N[p, k]
+                        aqk = N[q, k]
+                        N[p, k] = c * apk - sn * aqk
+                        N[q, k] = sn * apk + c * aqk
+                    for k in range(4):
+                        vkp = V[k, p]
+                        vkq = V[k, q]
+                        V[k, p] = c * vkp - sn * vkq
+                        V[k, q] = sn * vkp + c * vkq
+        best = 0
+        for i in range(1, 4):
+            if N[i, i] > N[best, best]:
+                best = i
+        w, x, y, z = V[0, best], V[1, best], V[2, best], V[3, best]
+        nq = w * w + x * x + y * y + z * z
+        w, x, y, z = w / math.sqrt(nq), x / math.sqrt(nq), y / math.sqrt(nq), z / math.sqrt(nq)
+        O = np.empty((3, 3))
+        O[0, 0] = w * w + x * x - y * y - z * z
+        O[0, 1] = 2.0 * (x * y - w * z)
+        O[0, 2] = 2.0 * (x * z + w * y)
+        O[1, 0] = 2.0 * (x * y + w * z)
+        O[1, 1] = w * w - x * x + y * y - z * z
+        O[1, 2] = 2.0 * (y * z - w * x)
+        O[2, 0] = 2.0 * (x * z - w * y)
+        O[2, 1] = 2.0 * (y * z + w * x)
+        O[2, 2] = w * w - x * x - y * y + z * z
+        return O
+
+    @numba.njit(cache=True, boundscheck=False)
     def _nb_rotation(q1: np.ndarray, beta2: np.ndarray, gamma: np.ndarray, mode: int,
                      up: np.ndarray) -> np.ndarray:
         """Optimal rotation (1 vertical, 2 so3) of ``warp_srvf(q2, gamma)`` onto ``q1`` (see rotation.py)."""
@@ -391,7 +460,16 @@ if HAVE_NUMBA:
         _nb_interp(beta2, gamma, bw)
         qw = np.empty((M, d))
         _nb_srvf(bw, qw)
-        A = q1.T @ qw / M
+        A = np.zeros((d, d))
+        for m in range(M):
+            for i in range(d):
+                for j in range(d):
+                    A[i, j] += q1[m, i] * qw[m, j]
+        for i in range(d):
+            for j in range(d):
+                A[i, j] /= M
+        if mode == 2 and d == 3:
+            return _nb_kabsch3(A)
         if mode == 2:
             U, _, Vt = np.linalg.svd(A)
             O = U @ Vt
