@@ -1,4 +1,5 @@
 import json
+import os
 import warnings
 
 import numpy as np
@@ -129,6 +130,9 @@ def test_write_never_overwrites(tmp_path, rng):
     write_swc(p, tree, overwrite=True)
     assert read_swc(p, T=10).num_branches.item() == tree.num_branches.item()
     assert not list(tmp_path.glob("*.tmp"))
+    umask = os.umask(0)
+    os.umask(umask)
+    assert p.stat().st_mode & 0o777 == 0o666 & ~umask  # readable like any other file, not mkstemp's 0600
 
 
 # ------------------------------------------------------------------------------- skeletons
