@@ -558,6 +558,16 @@ if HAVE_NUMBA:
         x2 = q1[m, 2] - (b2 - a2) * sc
         return x0 * x0 + x1 * x1 + x2 * x2
 
+    @numba.njit(cache=True, boundscheck=False, inline="always")
+    def _nb_point3(beta2: np.ndarray, x: float, M: int) -> tuple[float, float, float]:
+        """The 3D polyline ``beta2 (M+1, 3)`` at parameter ``x`` (clamped to [0, 1]), as three scalars."""
+        y = min(max(x, 0.0), 1.0) * M
+        f = min(math.floor(y), M - 1)
+        r = y - f
+        return (beta2[f, 0] + r * (beta2[f + 1, 0] - beta2[f, 0]),
+                beta2[f, 1] + r * (beta2[f + 1, 1] - beta2[f, 1]),
+                beta2[f, 2] + r * (beta2[f + 1, 2] - beta2[f, 2]))
+
     @numba.njit(cache=True, boundscheck=False)
     def _nb_refine3(q1: np.ndarray, beta2: np.ndarray, gamma: np.ndarray, sweeps: int, steps: int) -> None:
         """``_nb_refine`` for d = 3 (scalar code: no temporary arrays), same results."""
@@ -568,24 +578,9 @@ if HAVE_NUMBA:
                     a = gamma[m - 1]
                     b = gamma[m + 1]
                     cur = gamma[m]
-                    y = min(max(a, 0.0), 1.0) * M
-                    f = min(math.floor(y), M - 1)
-                    r = y - f
-                    a0 = beta2[f, 0] + r * (beta2[f + 1, 0] - beta2[f, 0])
-                    a1 = beta2[f, 1] + r * (beta2[f + 1, 1] - beta2[f, 1])
-                    a2 = beta2[f, 2] + r * (beta2[f + 1, 2] - beta2[f, 2])
-                    y = min(max(b, 0.0), 1.0) * M
-                    f = min(math.floor(y), M - 1)
-                    r = y - f
-                    b0 = beta2[f, 0] + r * (beta2[f + 1, 0] - beta2[f, 0])
-                    b1 = beta2[f, 1] + r * (beta2[f + 1, 1] - beta2[f, 1])
-                    b2 = beta2[f, 2] + r * (beta2[f + 1, 2] - beta2[f, 2])
-                    y = min(max(cur, 0.0), 1.0) * M
-                    f = min(math.floor(y), M - 1)
-                    r = y - f
-                    x0 = beta2[f, 0] + r * (beta2[f + 1, 0] - beta2[f, 0])
-                    x1 = beta2[f, 1] + r * (beta2[f + 1, 1] - beta2[f, 1])
-                    x2 = beta2[f, 2] + r * (beta2[f + 1, 2] - beta2[f, 2])
+                    a0, a1, a2 = _nb_point3(beta2, a, M)
+                    b0, b1, b2 = _nb_point3(beta2, b, M)
+                    x0, x1, x2 = _nb_point3(beta2, cur, M)
                     fcur = _nb_seg3(q1, m - 1, a0, a1, a2, x0, x1, x2, M) + _nb_seg3(q1, m, x0, x1, x2, b0, b1, b2, M)
                     delta = 0.25 * (b - a)
                     for _ in range(steps):
@@ -594,12 +589,7 @@ if HAVE_NUMBA:
                         for sign in (-1.0, 1.0):
                             x = cur + sign * delta
                             if a <= x <= b:
-                                y = min(max(x, 0.0), 1.0) * M
-                                f = min(math.floor(y), M - 1)
-                                r = y - f
-                                x0 = beta2[f, 0] + r * (beta2[f + 1, 0] - beta2[f, 0])
-                                x1 = beta2[f, 1] + r * (beta2[f + 1, 1] - beta2[f, 1])
-                                x2 = beta2[f, 2] + r * (beta2[f + 1, 2] - beta2[f, 2])
+                                x0, x1, x2 = _nb_point3(beta2, x, M)
                                 fx = (_nb_seg3(q1, m - 1, a0, a1, a2, x0, x1, x2, M)
                                       + _nb_seg3(q1, m, x0, x1, x2, b0, b1, b2, M))
                                 if fx < fbest:
