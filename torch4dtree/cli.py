@@ -25,10 +25,10 @@ def _add_load_options(p: argparse.ArgumentParser) -> None:
 
 def _load_options(args: argparse.Namespace):  # noqa: ANN202 - LoadOptions, imported lazily
     """Loading options from ``--config`` (if any) with the flags given on the command line on top."""
-    from .config import Config, load_config
+    from .config import LOAD_SETTINGS, Config, load_config
 
     config = load_config(args.config) if args.config else Config()
-    for name in ("T", "max_layers", "min_branch_length", "repair"):
+    for name in LOAD_SETTINGS:
         if getattr(args, name) is not None:  # given on the command line
             setattr(config, name, getattr(args, name))
     return config.load_options()

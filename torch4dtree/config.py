@@ -14,6 +14,8 @@ from pathlib import Path
 from .structures import DEFAULT_T, TreeError
 
 ROTATIONS = ("none", "vertical", "so3")
+# the settings that decide how files become trees (the fields of io.LoadOptions that a config sets)
+LOAD_SETTINGS = ("T", "max_layers", "min_branch_length", "repair")
 
 
 @dataclass
@@ -39,10 +41,10 @@ class Config:
             raise TreeError(f"lambdas must be three non-negative weights (lm, ls, lp), got {self.lambdas}")
 
     def load_options(self):  # noqa: ANN201 - io.LoadOptions (io imports structures; keep this module light)
+        """The :class:`~torch4dtree.io.LoadOptions` with every setting the two share taken from here."""
         from .io import LoadOptions
 
-        return LoadOptions(T=self.T, max_layers=self.max_layers, min_branch_length=self.min_branch_length,
-                           repair=self.repair)
+        return LoadOptions(**{name: getattr(self, name) for name in LOAD_SETTINGS})
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
