@@ -246,8 +246,11 @@ def test_map_points_follows_the_warp():
 
 def test_synthetic_plants_correspondence():
     data = pytest.importorskip("torch4dtree.data")
+    # 10 frames over the growth period: the stem grows by at most ~37% between frames, as between Pheno4D
+    # scans. (With 6 frames, +55% steps, a leaf that triples in length between two frames is sometimes
+    # cheaper to match to a look-alike: the ground truth then costs ~1% more than the match found.)
     for kind in ("tomato", "maize"):
-        frames = data.synthetic_plant(kind, 0, n_frames=6, T=T, dtype=torch.float64).sequence.frames
+        frames = data.synthetic_plant(kind, 0, n_frames=10, T=T, dtype=torch.float64).sequence.frames
         accs = [branch_accuracy(register_trees(frames[k + 1], frames[k]), frames[k + 1], frames[k])
                 for k in range(len(frames) - 1)]
         assert min(accs) >= 0.95, (kind, accs)
@@ -294,12 +297,43 @@ def test_invariance_with_default_settings_moderate_warps():
     assert float(r.distance) < 0.12 * _tree_norm(A) and branch_accuracy(r, B, A) == 1.0
 
 
-def test_synthetic_maize_plants_correspond_across_plants():
-    """Different maize plants (leaves at plant-specific heights and azimuths): leaf k matches leaf k."""
+@pytest.mark.parametrize("kind", ["tomato", "maize"])
+def test_synthetic_plants_correspond_across_plants(kind):
+    """Different plants of a kind (organs at plant-specific heights and azimuths, plant-specific growth
+    clocks, so the same frame holds different numbers of leaves): organ k matches organ k, extras null."""
     data = pytest.importorskip("torch4dtree.data")
-    plants = data.synthetic_dataset("maize", 3, 0, n_frames=6, T=T, dtype=torch.float64)
+    plants = data.synthetic_dataset(kind, 3, 0, n_frames=6, T=T, dtype=torch.float64)
     accs = []
-    for a, b in ((0, 1), (0, 2), (1, 2)):
-        fa, fb = plants[a].sequence.frames[5], plants[b].sequence.frames[5]
-        accs.append(branch_accuracy(register_trees(fa, fb, rotation="vertical"), fa, fb))
-    assert min(accs) >= 0.95, accs
+    for f in (2, 5):
+        for a, b in ((0, 1), (0, 2), (1, 2)):
+            fa, fb = plants[a].sequence.frames[f], plants[b].sequence.frames[f]
+            accs.append(branch_accuracy(register_trees(fa, fb, rotation="vertical"), fa, fb))
+    assert sum(accs) / len(accs) >= 0.95 and min(accs) >= 0.9, accs
+
+
+def test_children_aware_parent_warp():
+    """A straight stem carries one child at s = 0.3 in A and 0.6 in B. The stem's own DP warp is the
+    identity (any other stretches it), which leaves the child 0.3 away: with a large lp the metric's
+    infimum instead warps the stem so the child lands on its partner (stem cost L int (1 - sqrt(g'))^2)."""
+    import torch4dtree.registration as reg
+
+    stem = torch.stack([torch.zeros(T), torch.zeros(T), torch.linspace(0, 1, T)], 1).double()
+    leaf = torch.stack([torch.linspace(0, 0.8, T), torch.zeros(T), torch.zeros(T)], 1).double()
+    A = Trees.from_branches([[stem.numpy(), (leaf + torch.tensor([0, 0, 0.3])).numpy()]], [[-1, 0]], T=T,
+                            dtype=torch.float64)
+    B = Trees.from_branches([[stem.numpy(), (leaf + torch.tensor([0, 0, 0.6])).numpy()]], [[-1, 0]], T=T,
+                            dtype=torch.float64)
+    lam = (1.0, 1.0, 10.0)  # matching the children (<= 0.9) beats leaving both unmatched (1.6)
+    with_refit = register_trees(A, B, lambdas=lam)
+    rounds = reg.LANDMARK_ROUNDS
+    try:
+        reg.LANDMARK_ROUNDS = 0
+        stem_only = register_trees(A, B, lambdas=lam)
+    finally:
+        reg.LANDMARK_ROUNDS = rounds
+    assert with_refit.matches == stem_only.matches == [(0, 0), (1, 1)]
+    assert float(stem_only.distance) ** 2 == pytest.approx(10 * 0.3 ** 2, rel=0.05)
+    # the piecewise-linear warp through (0.6, 0.3) costs 0.6 (1 - sqrt(0.5))^2 + 0.4 (1 - sqrt(1.75))^2 = 0.093
+    assert float(with_refit.distance) ** 2 < 0.2
+    s_child = with_refit.aligned.s[0, 1]
+    assert abs(float(s_child) - 0.6) < 0.1

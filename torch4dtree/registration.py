@@ -162,12 +162,76 @@ def _rotate(x: Tensor, O: Tensor) -> Tensor:
     return (x.unsqueeze(-2) * O).sum(-1)
 
 
+# blends tried between a parent's own warp and the warp that puts its matched children exactly on theirs
+LANDMARK_STEPS = (0.25, 0.5, 0.75, 1.0)
+# rounds of (refit the parent warp to the matched children, re-solve their assignment)
+LANDMARK_ROUNDS = 3
+
+
+def _landmark_warp(s_ref: np.ndarray, s_now: np.ndarray, grid: np.ndarray) -> np.ndarray | None:
+    """``phi (T,)``: the piecewise-linear warp with ``phi(s_ref[i]) = s_now[i]`` (increasing subset), or None."""
+    xs, ys = [0.0], [0.0]
+    for x, y in sorted(zip(s_ref.tolist(), s_now.tolist())):
+        if xs[-1] + 1e-9 < x < 1.0 - 1e-9 and ys[-1] + 1e-9 < y < 1.0 - 1e-9:
+            xs.append(x)
+            ys.append(y)
+    if len(xs) == 1:
+        return None
+    return np.interp(grid, xs + [1.0], ys + [1.0])
+
+
+def _refit_to_children(ref_q: Tensor, mov_q: Tensor, gamma: np.ndarray, s_mov: np.ndarray, s_ref: np.ndarray,
+                       C: np.ndarray, pairs: list[tuple[int, int]], total: float, lm: float, lp: float
+                       ) -> tuple[float, list[tuple[int, int]], float, np.ndarray, np.ndarray]:
+    """Children-aware warp of one parent pair: the metric charges ``lp (gamma^{-1}(s_c) - s_e)^2`` for every
+    matched child, but the DP warp is chosen on the parent curves alone (as in the paper), which leaves the
+    children where a nearly straight stem happens to put them. Compose the warp with a piecewise-linear
+    ``phi`` that carries each matched child onto its partner (``gamma o ((1 - a) id + a phi)``), keep the best
+    blend ``a`` by the exact node cost (parent energy + the re-solved assignment) and repeat with the new
+    matching. Never increases the node cost. ``C`` is the node's augmented cost matrix for the DP warp.
+
+    Returns ``(total, pairs, parent energy, gamma, children's s')``.
+    """
+    T = gamma.shape[0]
+    grid = np.linspace(0.0, 1.0, T)
+    k1, k2 = len(s_mov), len(s_ref)
+    sc = np.interp(s_mov, gamma, grid)
+    E0 = float(srvf_sq_norm(ref_q - warp_srvf(mov_q, torch.from_numpy(gamma).to(mov_q.dtype))))
+    rows, cols = linear_sum_assignment(C)
+    best = (lm * E0 + float(C[rows, cols].sum()), pairs, E0, gamma, sc)  # the same node cost, recomputed here
+    base_s_cost = C[:k1, :k2] - lp * (sc[:, None] - s_ref[None, :]) ** 2  # the subtree part of each entry
+    for _ in range(LANDMARK_ROUNDS):
+        _, pairs_now, _, gam_now, sc_now = best
+        phi = _landmark_warp(s_ref[[j for _, j in pairs_now]], sc_now[[i for i, _ in pairs_now]], grid)
+        if phi is None:
+            break
+        cands = np.stack([np.interp((1 - a) * grid + a * phi, grid, gam_now) for a in LANDMARK_STEPS])
+        E = srvf_sq_norm(ref_q - warp_srvf(mov_q.expand(len(cands), -1, -1), torch.from_numpy(cands).to(mov_q.dtype)))
+        improved = False
+        for g, e in zip(cands, E.tolist()):
+            s_new = np.interp(s_mov, g, grid)
+            Cn = C.copy()
+            Cn[:k1, :k2] = base_s_cost + lp * (s_new[:, None] - s_ref[None, :]) ** 2
+            rn, cn = linear_sum_assignment(Cn)
+            t = lm * e + float(Cn[rn, cn].sum())
+            if t < best[0] - 1e-12 * max(1.0, abs(best[0])):
+                best = (t, [(i, j) for i, j in zip(rn, cn) if i < k1 and j < k2], e, g, s_new)
+                improved = True
+        if not improved:
+            break
+    if best[3] is gamma:
+        return total, pairs, (total - float(C[rows, cols].sum())) / lm, gamma, sc  # unchanged
+    return best
+
+
 def _solve(movs: Sequence[_Tree], refs: Sequence[_Tree], jobs: Sequence[tuple[int, int, Tensor]],
-           lambdas: Lambdas, dp_opts: dict, prune: bool, max_depth: int | None = None) -> list[_Config]:
+           lambdas: Lambdas, dp_opts: dict, prune: bool, max_depth: int | None = None,
+           landmarks: bool = True) -> list[_Config]:
     """Warps + assignments for fixed rotations. ``jobs[k] = (moving index, reference index, O (d, d))``.
 
     ``max_depth`` stops exploring pairs below that layer (their subtrees then count as unmatched): a cheap,
-    approximate solve used to rank starting rotations.
+    approximate solve used to rank starting rotations. ``landmarks`` refits each parent's warp to its
+    matched children (:func:`_refit_to_children`).
     """
     lm, ls, lp = lambdas
     T = movs[0].q.shape[1] + 1
@@ -232,7 +296,13 @@ def _solve(movs: Sequence[_Tree], refs: Sequence[_Tree], jobs: Sequence[tuple[in
                 C[k1:, k2:] = 0.0
                 rows, cols = linear_sum_assignment(C)
                 total += float(C[rows, cols].sum())
-                assign[key] = [(ca[i], cb[j]) for i, j in zip(rows, cols) if i < k1 and j < k2]
+                pairs = [(i, j) for i, j in zip(rows, cols) if i < k1 and j < k2]
+                if landmarks and pairs and lp > 0:
+                    ref_q, mov_q = ref.q[b], qrot[k][a]
+                    total, pairs, E, gam_ab, sc = _refit_to_children(
+                        ref_q, mov_q, info[key][1], mov.s[ca], ref.s[cb], C, pairs, total, lm, lp)
+                    info[key] = (E, gam_ab, sc)
+                assign[key] = [(ca[i], cb[j]) for i, j in pairs]
             D[key] = total
     out = []
     for k, (m, _, O) in enumerate(jobs):

@@ -176,49 +176,56 @@ class _PlantModel:
 
 
 def _tomato_structure(rng: np.random.Generator) -> _PlantModel:
+    # Organ traits follow the organ's identity: a profile along the stem shared by the kind, a plant-level
+    # offset and small per-organ noise, so leaf k of one plant resembles leaf k of another (as nodes of one
+    # cultivar do). With independent per-leaf draws (the first version) neighbouring leaves differed as much
+    # as same-index ones, and no shape metric could tell organ identities apart across plants.
     size = rng.uniform(0.85, 1.15)
     lean = _horizontal(rng, math.tan(rng.uniform(1.0, 6.0) * _DEG))
     wob = np.stack([_stem_wobble(rng, 0.05) for _ in range(2)])
     branches: list[_Branch] = []
-    phi_c = rng.uniform(0, 2 * math.pi)
+    phi0 = rng.uniform(0, 2 * math.pi)  # azimuth of the first true leaf
+    incline = rng.normal(0.0, 3.0)  # plant-level offset of the leaf inclinations (deg)
+    phi_c = phi0 - 0.5 * math.pi + rng.normal(0, 8 * _DEG)  # cotyledons across the first true leaf
     for k, phi in ((1, phi_c), (2, phi_c + math.pi + rng.normal(0, 6 * _DEG))):  # cotyledons, one node
         branches.append(_Branch(
-            label=k, parent=-1, attach=20.0 + rng.uniform(-2, 2), max_len=rng.uniform(24, 32), width=15.0,
-            theta_young=45 * _DEG, theta_mature=rng.uniform(65, 80) * _DEG, phi=phi,
+            label=k, parent=-1, attach=20.0 + rng.uniform(-2, 2), max_len=28.0 + rng.normal(0, 1.5), width=15.0,
+            theta_young=45 * _DEG, theta_mature=(72 + incline + rng.normal(0, 3)) * _DEG, phi=phi,
             droop=40 * _DEG, droop_max=50 * _DEG,
             wobble_theta=_wobble(rng, 0.06), wobble_phi=_wobble(rng, 0.08),
         ))
     internode = rng.uniform(14.0, 19.0)  # plant-specific spacing of the true leaves along the stem
-    phi0 = rng.uniform(0, 2 * math.pi)
     k, H = 3, 30.0 + rng.uniform(0, 4)
     while H < 222.0 and k < 100:
         leaf = len(branches)
         branches.append(_Branch(
-            label=k, parent=-1, attach=H, max_len=rng.uniform(130, 190), width=60.0,
-            theta_young=rng.uniform(25, 35) * _DEG, theta_mature=rng.uniform(45, 70) * _DEG,
+            label=k, parent=-1, attach=H, max_len=(135.0 + 45.0 * -math.expm1(-(k - 3) / 3.0)) * rng.normal(1, 0.04),
+            width=60.0, theta_young=(30 + rng.normal(0, 2)) * _DEG,
+            theta_mature=(57 + incline + rng.normal(0, 3)) * _DEG,
             phi=phi0 + (k - 3) * 137.5 * _DEG + rng.normal(0, 8 * _DEG),
-            droop=rng.uniform(45, 65) * _DEG, droop_max=85 * _DEG,
+            droop=(55 + rng.normal(0, 3)) * _DEG, droop_max=85 * _DEG,
             wobble_theta=_wobble(rng, 0.08), wobble_phi=_wobble(rng, 0.12),
         ))
-        pairs = [0.36, 0.56, 0.73] if rng.uniform() < 0.35 else [0.4, 0.65]
+        # the first true leaves carry two pairs of leaflets, later ones mostly three
+        pairs = [0.36, 0.56, 0.73] if rng.uniform() < (0.15 if k < 6 else 0.85) else [0.4, 0.65]
         for p, u in enumerate(pairs, 1):
             u = u + rng.uniform(-0.03, 0.03)
             for side_i, side in ((1, 1.0), (2, -1.0)):
                 j = 2 * (p - 1) + side_i
                 leaflet = len(branches)
                 branches.append(_Branch(
-                    label=k * 100 + j, parent=leaf, attach=u, rate=rng.uniform(0.3, 0.45),
+                    label=k * 100 + j, parent=leaf, attach=u, rate=0.37 + rng.normal(0, 0.02),
                     threshold=40.0 + 30.0 * (p - 1) + rng.uniform(-3, 3),
-                    spread=rng.uniform(55, 75) * _DEG, side=side,
-                    droop=rng.uniform(40, 70) * _DEG, droop_max=60 * _DEG,
+                    spread=(65 + rng.normal(0, 4)) * _DEG, side=side,
+                    droop=(55 + rng.normal(0, 4)) * _DEG, droop_max=60 * _DEG,
                     wobble_theta=_wobble(rng, 0.06), wobble_phi=_wobble(rng, 0.08),
                 ))
                 if p == 1 and rng.uniform() < 0.8:  # the big basal leaflets carry a pair of lobes
                     for m, lside in ((1, 1.0), (2, -1.0)):
                         branches.append(_Branch(
                             label=(k * 100 + j) * 100 + m, parent=leaflet, attach=0.3 + rng.uniform(-0.04, 0.04),
-                            rate=rng.uniform(0.3, 0.4), threshold=20.0 + rng.uniform(-3, 3),
-                            spread=rng.uniform(45, 65) * _DEG, side=lside,
+                            rate=0.35 + rng.normal(0, 0.015), threshold=20.0 + rng.uniform(-3, 3),
+                            spread=(55 + rng.normal(0, 4)) * _DEG, side=lside,
                             droop=30 * _DEG, droop_max=40 * _DEG,
                             wobble_theta=_wobble(rng, 0.05), wobble_phi=_wobble(rng, 0.05),
                         ))
