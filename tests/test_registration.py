@@ -194,6 +194,11 @@ def test_features_norm_is_the_recursive_metric():
     assert float(one.sq_norm()[0]) == pytest.approx(norms[0], rel=1e-9)
     back = AlignedTrees.from_features(f, al)
     assert torch.allclose(back.q, al.q) and torch.allclose(back.s[:, 1:], al.s[:, 1:])
+    # .to casts the float parts and keeps the layout; the metric survives the round trip
+    low = al.to(torch.float32)
+    assert low.q.dtype == low.s.dtype == low.root.dtype == torch.float32 and low.source.dtype == torch.long
+    assert torch.equal(low.slot_parent, al.slot_parent) and torch.equal(low.present, al.present)
+    assert float(low.to("cpu", torch.float64).sq_distances()[0, 1]) == pytest.approx(float(r.distance) ** 2, rel=1e-5)
 
 
 def test_distance_before_is_index_order_and_differentiable():

@@ -125,6 +125,14 @@ class AlignedTrees:
                             torch.cat([b.present for b in batches]), torch.cat([b.root for b in batches]),
                             a.slot_parent, a.slot_depth, torch.cat([b.source for b in batches]), a.lambdas)
 
+    def to(self, *args, **kwargs) -> AlignedTrees:
+        """Move / cast like ``Tensor.to``: ``q``, ``s`` and ``root`` take the dtype, every tensor the device."""
+        q = self.q.to(*args, **kwargs)
+        dev = q.device
+        return AlignedTrees(q, self.s.to(device=dev, dtype=q.dtype), self.present.to(dev),
+                            self.root.to(device=dev, dtype=q.dtype), self.slot_parent.to(dev),
+                            self.slot_depth.to(dev), self.source.to(dev), self.lambdas)
+
     def weights(self) -> tuple[Tensor, Tensor]:
         """``(w_q (S,), w_s (S,))`` metric weights of each slot's SRVF and ``s``."""
         w_q, w_s = slot_weights(self.slot_depth, self.lambdas)
