@@ -12,6 +12,14 @@ As in the paper the warp of a branch is chosen on the branch alone (DP), then th
 parameters move with it and their matching is one linear assignment on the augmented
 ``(k1 + k2) x (k1 + k2)`` cost matrix.
 
+Children-aware warps (beyond the paper): the metric charges ``lp (s'_c - s_e)^2`` for every matched
+child, which the parent's own DP warp ignores (a nearly straight stem leaves its children wherever the
+identity puts them). Where those terms are at least ``LANDMARK_MIN_SHARE`` of a node's cost, the parent
+warp is composed with a piecewise-linear warp that carries the matched children onto their partners
+(best of a few blends, by the exact node cost) and the children's assignment is re-solved; this never
+raises the energy (mean distance 8.80 -> 8.15 on synthetic tomato pairs with lp = 300). With lp = 1 on
+plants measured in mm the terms are negligible and nothing changes.
+
 Batching: the candidate pairs are generated top-down, depth by depth (children pairs of every
 non-pruned parent pair), and each depth is ONE batched :func:`dp_warp` call over every pair of
 every registration in flight (all the trees of :func:`register_to_reference`, all rotation starts).
@@ -166,6 +174,8 @@ def _rotate(x: Tensor, O: Tensor) -> Tensor:
 LANDMARK_STEPS = (0.25, 0.5, 0.75, 1.0)
 # rounds of (refit the parent warp to the matched children, re-solve their assignment)
 LANDMARK_ROUNDS = 3
+# ... tried only where the children's parameter terms are at least this share of the node's cost
+LANDMARK_MIN_SHARE = 0.01
 
 
 def _landmark_warp(s_ref: np.ndarray, s_now: np.ndarray, grid: np.ndarray) -> np.ndarray | None:
@@ -297,7 +307,8 @@ def _solve(movs: Sequence[_Tree], refs: Sequence[_Tree], jobs: Sequence[tuple[in
                 rows, cols = linear_sum_assignment(C)
                 total += float(C[rows, cols].sum())
                 pairs = [(i, j) for i, j in zip(rows, cols) if i < k1 and j < k2]
-                if landmarks and pairs and lp > 0:
+                s_cost = lp * sum((sc[i] - ref.s[cb[j]]) ** 2 for i, j in pairs)  # the most a refit can save
+                if landmarks and pairs and s_cost > LANDMARK_MIN_SHARE * total:
                     ref_q, mov_q = ref.q[b], qrot[k][a]
                     total, pairs, E, gam_ab, sc = _refit_to_children(
                         ref_q, mov_q, info[key][1], mov.s[ca], ref.s[cb], C, pairs, total, lm, lp)
