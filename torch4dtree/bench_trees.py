@@ -20,11 +20,14 @@ from .registration import register_trees
 from .structures import Trees
 
 __all__ = [
-    "PAPER_SECONDS", "benchmark_cycle_consistency", "benchmark_synthetic_accuracy", "benchmark_trees",
-    "consecutive_pairs", "default_data_root",
+    "PAPER_SECONDS", "PAPER_TOMATO_SPATIAL_SECONDS", "benchmark_all_pairs", "benchmark_cycle_consistency",
+    "benchmark_synthetic_accuracy", "benchmark_trees",
+    "consecutive_pairs", "default_data_root", "plant_frames",
 ]
 
 PAPER_SECONDS = 2.3
+# the public reference scripts: "4-5 minutes" for the spatial registrations of the tomato plants
+PAPER_TOMATO_SPATIAL_SECONDS = 270.0
 
 
 def default_data_root() -> Path:
@@ -37,19 +40,20 @@ def _kind(plant: str) -> str:
     return "maize" if plant.lower().startswith("maize") else "tomato"  # Maize01, maize01_seq; tomato_1, tom_1_seq
 
 
-def consecutive_pairs(root: str | Path | None = None, T: int = 64, kinds: tuple[str, ...] = ("tomato", "maize"),
-                      max_pairs: int | None = None, source: str = "swc") -> list[tuple[str, str, Trees, Trees]]:
-    """``[(kind, name, day_k tree, day_k+1 tree), ...]`` sorted by file name (= date).
+def plant_frames(root: str | Path | None = None, T: int = 64, kinds: tuple[str, ...] = ("tomato", "maize"),
+                 source: str = "swc") -> list[tuple[str, str, list[Path], list[Trees | None]]]:
+    """``[(kind, plant name, files, trees), ...]``: every Pheno4D plant's frames, sorted by file name (= date).
 
     ``source="swc"``: the raw skeletons ``root/swc/<plant>/*.swc``; ``"mat"``: the hand-corrected trees
     of the paper ``root/mat/<plant>_seq/*.mat`` (the ``_alt`` / ``_altered`` folders are skipped).
+    Empty frames are ``None``.
     """
     import warnings
 
     if source not in ("swc", "mat"):
         raise ValueError(f"source must be 'swc' or 'mat', got {source!r}")
     root = Path(root) if root is not None else default_data_root()
-    out: list[tuple[str, str, Trees, Trees]] = []
+    out = []
     for plant in sorted(p for p in (root / source).iterdir() if p.is_dir()):
         kind = _kind(plant.name)
         if kind not in kinds or (source == "mat" and not plant.name.endswith("_seq")):
@@ -58,11 +62,45 @@ def consecutive_pairs(root: str | Path | None = None, T: int = 64, kinds: tuple[
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # the reader reports repaired skeletons; not our business here
             trees = [read_tree(f, LoadOptions(T=T, repair=True, dtype=torch.float64)) for f in files]
+        out.append((kind, plant.name, files, trees))
+    return out
+
+
+def consecutive_pairs(root: str | Path | None = None, T: int = 64, kinds: tuple[str, ...] = ("tomato", "maize"),
+                      max_pairs: int | None = None, source: str = "swc") -> list[tuple[str, str, Trees, Trees]]:
+    """``[(kind, name, day_k tree, day_k+1 tree), ...]`` for every plant of :func:`plant_frames`."""
+    out: list[tuple[str, str, Trees, Trees]] = []
+    for kind, plant, files, trees in plant_frames(root, T, kinds, source):
         for k in range(len(files) - 1):
             a, b = trees[k], trees[k + 1]
             if a is not None and b is not None:
-                out.append((kind, f"{plant.name}:{files[k].stem}->{files[k + 1].stem}", a, b))
+                out.append((kind, f"{plant}:{files[k].stem}->{files[k + 1].stem}", a, b))
     return out[:max_pairs] if max_pairs is not None else out
+
+
+def benchmark_all_pairs(root: str | Path | None = None, T: int = 64, kind: str = "tomato", source: str = "swc",
+                        processes: int | None = None, **kwargs: object) -> dict:
+    """Time the all-pairs distance matrix of every frame of every plant of one kind (within and across
+    sequences), with :func:`~torch4dtree.registration.pairwise_distances` on all cores.
+
+    The authors' scripts take 4-5 minutes for the tomato spatial registrations alone
+    (``PAPER_TOMATO_SPATIAL_SECONDS``, the middle of that range). Returns ``{"trees", "pairs", "seconds",
+    "s_per_pair", "processes", "paper_seconds", "speedup_vs_paper"}``.
+    """
+    from .registration import pairwise_distances
+
+    trees = [t for _, _, _, ts in plant_frames(root, T, (kind,), source) for t in ts if t is not None]
+    if len(trees) < 2:
+        raise FileNotFoundError(f"fewer than 2 {kind} trees found under {root or default_data_root()}")
+    batch = Trees.cat(trees)
+    register_trees(trees[1], trees[0], **kwargs)  # warm-up (JIT) outside the timing
+    t0 = time.perf_counter()
+    D = pairwise_distances(batch, processes=processes, progress=False, **kwargs)
+    seconds = time.perf_counter() - t0
+    n = len(trees)
+    return {"trees": n, "pairs": n * (n - 1) // 2, "seconds": seconds, "s_per_pair": seconds / (n * (n - 1) // 2),
+            "processes": processes or os.cpu_count(), "paper_seconds": PAPER_TOMATO_SPATIAL_SECONDS,
+            "speedup_vs_paper": PAPER_TOMATO_SPATIAL_SECONDS / seconds, "finite": bool(torch.isfinite(D).all())}
 
 
 def _summary(times: list[float], before: list[float], after: list[float]) -> dict:
