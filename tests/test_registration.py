@@ -342,3 +342,14 @@ def test_children_aware_parent_warp():
     assert float(with_refit.distance) ** 2 < 0.2
     s_child = with_refit.aligned.s[0, 1]
     assert abs(float(s_child) - 0.6) < 0.1
+
+
+def test_all_pairs_benchmark_counts_every_frame():
+    from conftest import PHENO4D, pheno4d
+
+    from torch4dtree.bench_trees import benchmark_all_pairs, plant_frames
+
+    pheno4d("swc")
+    n = sum(t is not None for _, _, _, ts in plant_frames(PHENO4D, T=8, kinds=("maize",)) for t in ts)
+    r = benchmark_all_pairs(PHENO4D, T=8, kind="maize", processes=1)
+    assert r["trees"] == n > 10 and r["pairs"] == n * (n - 1) // 2 and r["finite"] and r["seconds"] > 0
