@@ -288,3 +288,34 @@ def test_import_does_not_need_gl():
     code = "import sys, torch4dtree, torch4dtree.render; print('pyrender' in sys.modules, 'OpenGL' in sys.modules)"
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert res.stdout.split() == ["False", "False"], res.stderr
+
+
+def test_register_picture_colours_matched_branches_alike(tmp_path: Path):
+    """``torch4dtree register A B --image``: A's side branches point +x, +y, -x at s = 0.3, 0.5, 0.7 and B's the
+    same directions at 0.5, 0.3, 0.7, so index order pairs the wrong ones. Registration matches by shape; in
+    the picture the longest side branch (+x) then has one colour in both trees."""
+    from torch4dtree.cli import main
+    from torch4dtree.io import write_swc
+
+    T = 16
+    u = np.linspace(0.0, 1.0, T)[:, None]
+    stem = u * np.array([0.0, 0.0, 3.0])
+
+    def side(s: float, direction: tuple[float, float, float], length: float) -> np.ndarray:
+        return np.array([0.0, 0.0, 3.0 * s]) + u * length * np.array(direction)
+
+    arms = {"+x": ((1.0, 0.0, 0.3), 1.0), "+y": ((0.0, 1.0, 0.3), 0.5), "-x": ((-1.0, 0.0, 0.3), 0.7)}
+    paths = []
+    for name, order in (("a", ("+x", "+y", "-x")), ("b", ("+y", "+x", "-x"))):
+        branches = [stem] + [side(s, *arms[k]) for s, k in zip((0.3, 0.5, 0.7), order)]
+        tree = Trees.from_branches([branches], [[-1, 0, 0, 0]], T=T, dtype=torch.float64)
+        paths.append(write_swc(tmp_path / f"{name}.swc", tree))
+    out = tmp_path / "pair.png"
+    assert main(["register", str(paths[0]), str(paths[1]), "--T", str(T), "--image", str(out), "--steps", "2"]) == 0
+    img = imageio.imread(out)[..., :3]
+    halves = img[:, : img.shape[1] // 2], img[:, img.shape[1] // 2:]
+    assert all(plant_mask(h).sum() > 50 for h in halves)
+    # the side branches' slot colours (the main branch is slot 0): the most frequent one is the +x arm in each
+    counts = [[hue_count(h, LABEL_PALETTE[k], tol=4) for k in (1, 2, 3)] for h in halves]
+    assert int(np.argmax(counts[0])) == int(np.argmax(counts[1])) and min(max(c) for c in counts) > 20, counts
+    assert main(["register", str(paths[0]), str(paths[1]), "--T", str(T), "--image", str(out)]) == 2  # no overwrite

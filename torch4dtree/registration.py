@@ -673,7 +673,32 @@ def add_register_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="print a JSON summary instead of text")
     parser.add_argument("--out", default=None, help="folder for the registered pair and a geodesic as SWC files")
     parser.add_argument("--steps", type=int, default=5, help="trees on the geodesic written with --out (default 5)")
-    parser.add_argument("--overwrite", action="store_true", help="replace existing files in --out")
+    parser.add_argument("--image", default=None,
+                        help="picture of the geodesic (.png, .jpg) or its animation (.gif, .mp4), matched branches "
+                             "in one colour (needs the render extra)")
+    parser.add_argument("--overwrite", action="store_true", help="replace existing files in --out / --image")
+
+
+def _save_correspondence_picture(res: TreeRegistration, args: argparse.Namespace) -> object:
+    """The geodesic from the registered moving tree to the reference, a branch's colour = its common slot, so
+    matched branches share a colour along the path (a row of trees, or an animation for .gif / .mp4)."""
+    from pathlib import Path
+
+    from .geodesic import geodesic
+    from .render import VIDEO_SUFFIXES, render_grid, save_image, save_video
+
+    image = Path(args.image)
+    if image.exists() and not args.overwrite:  # fail before rendering
+        raise FileExistsError(f"{image} exists; pass --overwrite to replace it")
+    steps = max(args.steps, 2)
+    path = geodesic(res, steps)
+    title = (f"{Path(args.moving).stem} -> {Path(args.reference).stem}: distance {float(res.distance_before):.3g} "
+             f"-> {float(res.distance):.3g}")
+    if image.suffix.lower() in VIDEO_SUFFIXES:
+        frames = render_grid([path], video=True, n_frames=4 * steps, title=title, color="label")
+        return save_video(image, frames, fps=8, overwrite=args.overwrite)
+    cols = ["moving (registered)"] + [f"t = {k / (steps - 1):.2f}" for k in range(1, steps - 1)] + ["reference"]
+    return save_image(image, render_grid([path], col_labels=cols, title=title, color="label"), overwrite=args.overwrite)
 
 
 def run_register(args: argparse.Namespace) -> int:
@@ -697,6 +722,8 @@ def run_register(args: argparse.Namespace) -> int:
     res = register_trees(moving, reference, lambdas=args.lambdas, rotation=args.rotation)
     seconds = time.perf_counter() - t0
     written: list[str] = []
+    if args.image:
+        written.append(str(_save_correspondence_picture(res, args)))
     if args.out:
         out = Path(args.out)
         names = ["moving_registered.swc", "reference.swc"] + [f"geodesic_{k:02d}.swc" for k in range(args.steps)]
