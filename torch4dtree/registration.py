@@ -139,6 +139,8 @@ class _Config:
 # ----------------------------------------------------------------------------- the recursive solver
 
 
+# points per branch of the curves on which rotation starts are ranked
+RANK_T = 24
 # a rotation start whose energy is this many times the best start's of the same pair is dropped
 STOP_START_RATIO = 1.5
 # ... and at most this many starts per pair keep alternating after the first round
@@ -511,7 +513,12 @@ def register_to_reference(trees: Trees, reference: Trees, lambdas: Sequence[floa
         best: list[_Config | None] = [None] * len(movs)
         jobs = [(m, 0, O) for m, Os in enumerate(starts) for O in Os]
         if rotation != "none" and max(len(Os) for Os in starts) > KEEP_STARTS:
-            jobs = _rank_starts(movs, ref, jobs, lam, dp_opts, prune, rotation, up_t)
+            if reference.T > RANK_T:  # ranking only compares starts: coarser curves do (DP cost ~ T^2)
+                coarse = [_prepare(t, lam) for t in trees.resample(RANK_T).split()]
+                jobs = _rank_starts(coarse, _prepare(reference.resample(RANK_T), lam), jobs, lam, dp_opts, prune,
+                                    rotation, up_t)
+            else:
+                jobs = _rank_starts(movs, ref, jobs, lam, dp_opts, prune, rotation, up_t)
         last = [math.inf] * len(jobs)
         for _ in range(max(max_iters, 1)):
             configs = _solve(movs, [ref], jobs, lam, dp_opts, prune)
