@@ -209,8 +209,9 @@ class AlignedTrees:
         N = pts.shape[0]
         parent = trees.parent.to(torch.long)
         return AlignedTrees(
-            srvf(pts)[None], trees.s.to(dtype)[None], torch.ones(1, N, dtype=torch.bool),
-            pts[0, 0][None], parent, trees.depth, torch.arange(N)[None], tuple(float(x) for x in lambdas),
+            srvf(pts)[None], trees.s.to(dtype)[None], torch.ones(1, N, dtype=torch.bool, device=pts.device),
+            pts[0, 0][None], parent, trees.depth, torch.arange(N, device=pts.device)[None],
+            tuple(float(x) for x in lambdas),
         )
 
     # ------------------------------------------------------------------------ decoding
@@ -267,9 +268,10 @@ class AlignedTrees:
             counts.append(len(order))
         raw = torch.cat(pts_all)
         T = M + 1
-        out = Trees(_resample_or_keep(raw, T), torch.tensor(par_all, dtype=torch.long),
-                    torch.stack(s_all).to(raw.dtype).clamp(0, 1), torch.tensor(counts, dtype=torch.long),
-                    torch.tensor(lab_all, dtype=torch.long))
+        dev = raw.device
+        out = Trees(_resample_or_keep(raw, T), torch.tensor(par_all, dtype=torch.long, device=dev),
+                    torch.stack(s_all).to(raw.dtype).clamp(0, 1), torch.tensor(counts, dtype=torch.long, device=dev),
+                    torch.tensor(lab_all, dtype=torch.long, device=dev))
         # resampling moves a parent's points by chord effects: snap each child back onto its parent
         side = out.parent >= 0
         if bool(side.any()):
@@ -301,6 +303,6 @@ def _resample_or_keep(points: Tensor, T: int) -> Tensor:
     out = points.clone()
     ok = length > 0
     if bool(ok.any()):
-        counts = torch.full((int(ok.sum()),), points.shape[1])
+        counts = torch.full((int(ok.sum()),), points.shape[1], device=points.device)
         out[ok] = resample_polylines(points[ok], counts, T)
     return out

@@ -102,11 +102,11 @@ def cycle_consistency(a: Trees, b: Trees, eps: Sequence[float] = DEFAULT_EPS,
     """
     fwd = forward if forward is not None else register_trees(a, b, **kwargs)  # type: ignore[arg-type]
     bwd = backward if backward is not None else register_trees(b, a, **kwargs)  # type: ignore[arg-type]
-    pts = a.points.detach().to(torch.float64)
+    pts = a.points.detach().to("cpu", torch.float64)  # point bookkeeping on the CPU, like map_points
     N, T, _ = pts.shape
     branch = torch.arange(N).repeat_interleave(T)
     t = torch.linspace(0, 1, T, dtype=torch.float64).repeat(N)
-    weight = (a.branch_lengths().detach().to(torch.float64) / T).repeat_interleave(T)
+    weight = (a.branch_lengths().detach().to("cpu", torch.float64) / T).repeat_interleave(T)
     b1, t1 = map_points(fwd, branch, t)
     mapped = b1 >= 0
     b2 = torch.full_like(branch, -1)

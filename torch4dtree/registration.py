@@ -112,9 +112,10 @@ class _Tree:
 def _prepare(tree: Trees, lambdas: Lambdas) -> _Tree:
     if tree.num_trees != 1:
         raise ValueError(f"expected a single tree, got a batch of {tree.num_trees}")
-    q = srvf(tree.points.detach().to(torch.float64))
+    # the discrete solve (DP warps, assignments) runs on the CPU; results go back to the input's device
+    q = srvf(tree.points.detach().cpu().to(torch.float64))
     parent = tree.parent.tolist()
-    s = tree.s.detach().to(torch.float64).numpy().copy()
+    s = tree.s.detach().cpu().to(torch.float64).numpy().copy()
     children: list[list[int]] = [[] for _ in parent]
     for i, p in enumerate(parent):
         if p >= 0:
@@ -412,7 +413,8 @@ def _build_aligned(mov: _Tree, ref: _Tree, match: dict[int, int], gamma: np.ndar
     Nm, Nr = len(mov.parent), len(ref.parent)
     dtype = torch.float64
     pts_m = mov.points.to(dtype)
-    pts_r = ref.points.to(dtype)
+    dev = pts_m.device
+    pts_r = ref.points.to(device=dev, dtype=dtype)
     T = pts_r.shape[1]
     grid = np.linspace(0.0, 1.0, T)
     slot_of = [-1] * Nm
@@ -427,30 +429,32 @@ def _build_aligned(mov: _Tree, ref: _Tree, match: dict[int, int], gamma: np.ndar
             slot_parent.append(ps)
             slot_depth.append(slot_depth[ps] + 1)
     S = len(slot_parent)
-    g = torch.from_numpy(gamma).to(dtype)
-    qm = _rotate(warp_srvf(srvf(pts_m), g), O.to(dtype))
+    g = torch.from_numpy(gamma).to(device=dev, dtype=dtype)
+    qm = _rotate(warp_srvf(srvf(pts_m), g), O.to(device=dev, dtype=dtype))
     qr = srvf(pts_r)
     M, d = qr.shape[1:]
     # a child's parameter moves with its parent's warp (identity for unmatched parents)
     s_m = np.array([0.0 if a == 0 else np.interp(mov.s[a], gamma[mov.parent[a]], grid) for a in range(Nm)])
-    q = torch.zeros(2, S, M, d, dtype=dtype)
-    s = torch.zeros(2, S, dtype=dtype)
-    present = torch.zeros(2, S, dtype=torch.bool)
-    source = torch.full((2, S), -1, dtype=torch.long)
-    idx_m = torch.tensor(slot_of, dtype=torch.long)
-    q = q.index_put((torch.zeros(Nm, dtype=torch.long), idx_m), qm)
-    q = q.index_put((torch.ones(Nr, dtype=torch.long), torch.arange(Nr)), qr)
-    s[1, :Nr] = torch.from_numpy(ref.s)
-    s[0, :Nr] = torch.from_numpy(ref.s)  # null partners sit at the same s
-    s[0, idx_m] = torch.from_numpy(s_m)
+    q = torch.zeros(2, S, M, d, dtype=dtype, device=dev)
+    s = torch.zeros(2, S, dtype=dtype, device=dev)
+    present = torch.zeros(2, S, dtype=torch.bool, device=dev)
+    source = torch.full((2, S), -1, dtype=torch.long, device=dev)
+    idx_m = torch.tensor(slot_of, dtype=torch.long, device=dev)
+    ar_m, ar_r = torch.arange(Nm, device=dev), torch.arange(Nr, device=dev)
+    q = q.index_put((torch.zeros(Nm, dtype=torch.long, device=dev), idx_m), qm)
+    q = q.index_put((torch.ones(Nr, dtype=torch.long, device=dev), ar_r), qr)
+    s_ref = torch.from_numpy(ref.s).to(dev)
+    s[1, :Nr] = s_ref
+    s[0, :Nr] = s_ref  # null partners sit at the same s
+    s[0, idx_m] = torch.from_numpy(s_m).to(dev)
     s[1, Nr:] = s[0, Nr:]
     present[0, idx_m] = True
     present[1, :Nr] = True
-    source[0, idx_m] = torch.arange(Nm)
-    source[1, :Nr] = torch.arange(Nr)
+    source[0, idx_m] = ar_m
+    source[1, :Nr] = ar_r
     root = torch.stack([pts_m[0, 0], pts_r[0, 0]])
-    return AlignedTrees(q, s, present, root, torch.tensor(slot_parent), torch.tensor(slot_depth), source,
-                        tuple(float(x) for x in lambdas))
+    return AlignedTrees(q, s, present, root, torch.tensor(slot_parent, device=dev),
+                        torch.tensor(slot_depth, device=dev), source, tuple(float(x) for x in lambdas))
 
 
 def _pair_distance(aligned: AlignedTrees) -> Tensor:
@@ -570,7 +574,8 @@ def register_to_reference(trees: Trees, reference: Trees, lambdas: Sequence[floa
         matches = sorted(cfg.match.items())
         matched_ref = set(cfg.match.values())
         out.append(TreeRegistration(
-            dist, dist_before, cfg.O.to(trees.dtype), torch.from_numpy(cfg.gamma).to(trees.dtype), matches,
+            dist, dist_before, cfg.O.to(device=trees.device, dtype=trees.dtype),
+            torch.from_numpy(cfg.gamma).to(device=trees.device, dtype=trees.dtype), matches,
             [a for a in range(len(mov.parent)) if a not in cfg.match],
             [b for b in range(len(ref.parent)) if b not in matched_ref], aligned, used_base,
         ))
