@@ -353,3 +353,11 @@ def test_all_pairs_benchmark_counts_every_frame():
     n = sum(t is not None for _, _, _, ts in plant_frames(PHENO4D, T=8, kinds=("maize",)) for t in ts)
     r = benchmark_all_pairs(PHENO4D, T=8, kind="maize", processes=1)
     assert r["trees"] == n > 10 and r["pairs"] == n * (n - 1) // 2 and r["finite"] and r["seconds"] > 0
+
+
+def test_lambdas_checked_in_the_specs_order():
+    A = random_tree(np.random.default_rng(21), depth=2)
+    assert float(register_trees(A, A, lambdas=(1.0, 1.0, 0.0)).distance) < 1e-9  # lp = 0: positions ignored
+    for bad in ((1.0, 0.0, 1.0), (0.0, 1.0, 1.0), (1.0, 1.0, -1.0), (1.0, 1.0), (1.0, float("nan"), 1.0)):
+        with pytest.raises(ValueError, match="lm > 0, ls > 0, lp >= 0"):
+            register_trees(A, A, lambdas=bad)

@@ -468,8 +468,8 @@ def _pair_distance(aligned: AlignedTrees) -> Tensor:
 
 def _check_lambdas(lambdas: Sequence[float]) -> Lambdas:
     lam = tuple(float(x) for x in lambdas)
-    if len(lam) != 3 or any(not math.isfinite(x) or x < 0 for x in lam) or lam[0] <= 0 or lam[2] <= 0:
-        raise ValueError(f"lambdas must be (lm > 0, lp >= 0, ls > 0), got {lambdas}")
+    if len(lam) != 3 or any(not math.isfinite(x) or x < 0 for x in lam) or lam[0] <= 0 or lam[1] <= 0:
+        raise ValueError(f"lambdas must be (lm > 0, ls > 0, lp >= 0) in the SPEC's order, got {tuple(lambdas)}")
     return lam  # type: ignore[return-value]
 
 
