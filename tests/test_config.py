@@ -40,3 +40,24 @@ def test_cli_flags_override_the_config(tmp_path, capsys):
     assert json.loads(capsys.readouterr().out)["branches"] == 1
     assert main(["info", str(swc), "--json", "--config", str(cfg), "--max-layers", "2"]) == 0
     assert json.loads(capsys.readouterr().out)["branches"] == 2
+
+
+def test_register_reads_its_settings_from_the_config(tmp_path, capsys):
+    """register takes the registration settings (rotation, lambdas, neighbourhood) and the loading ones from
+    --config; flags win. Two trees whose side branches sit at s = 0.25 / 0.75: lp decides the distance."""
+    a, b = tmp_path / "a.swc", tmp_path / "b.swc"
+    a.write_text("1 0 0 0 0 1 -1\n2 0 0 0 1 1 1\n3 0 0 0 4 1 2\n4 0 1 0 1 1 2\n")
+    b.write_text("1 0 0 0 0 1 -1\n2 0 0 0 3 1 1\n3 0 0 0 4 1 2\n4 0 1 0 3 1 2\n")
+    cfg = tmp_path / "c.json"
+    cfg.write_text(json.dumps({"T": 16, "lambdas": [1.0, 1.0, 0.0]}))
+
+    def distance(*extra: str) -> float:
+        assert main(["register", str(a), str(b), "--json", "--config", str(cfg), *extra]) == 0
+        return json.loads(capsys.readouterr().out)["distance_after"]
+
+    free = distance()  # lp = 0 from the config: the parameters cost nothing
+    charged = distance("--lambdas", "1", "1", "100")  # the flag overrides the config
+    assert free < 1e-6 < charged
+    cfg.write_text(json.dumps({"lambdas": [1.0, 0.0, 1.0]}))
+    assert main(["register", str(a), str(b), "--config", str(cfg)]) == 2  # a bad setting: a named error
+    assert "ls > 0" in capsys.readouterr().err

@@ -11,27 +11,8 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from .structures import DEFAULT_T, TreeError
-
-
-def _add_load_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--config", default=None, help="a JSON settings file (see configs/); flags given override it")
-    p.add_argument("--T", type=int, default=None, help=f"points per branch after resampling (default {DEFAULT_T})")
-    p.add_argument("--max-layers", type=int, default=None, help="keep at most this many branch layers")
-    p.add_argument("--min-branch-length", type=float, default=None, help="drop SWC side branches shorter than this")
-    p.add_argument("--repair", action="store_true", default=None,
-                   help="mend SWC cycles / parts cut off from the root (warns)")
-
-
-def _load_options(args: argparse.Namespace):  # noqa: ANN202 - LoadOptions, imported lazily
-    """Loading options from ``--config`` (if any) with the flags given on the command line on top."""
-    from .config import LOAD_SETTINGS, Config, load_config
-
-    config = load_config(args.config) if args.config else Config()
-    for name in LOAD_SETTINGS:
-        if getattr(args, name) is not None:  # given on the command line
-            setattr(config, name, getattr(args, name))
-    return config.load_options()
+from .config import add_config_arguments, config_from_args
+from .structures import TreeError
 
 
 # ------------------------------------------------------------------------------------- synth
@@ -87,7 +68,7 @@ def _print_sequence(s: dict) -> None:
 
 
 def _cmd_info(args: argparse.Namespace) -> int:
-    summary = info(args.path, _load_options(args))
+    summary = info(args.path, config_from_args(args).load_options())
     if args.json:
         print(json.dumps(summary))
     elif "sequences" in summary:
@@ -138,7 +119,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("info", help="summarise a tree file, a sequence folder or a dataset folder")
     p.add_argument("path")
     p.add_argument("--json", action="store_true", help="print one JSON object")
-    _add_load_options(p)
+    add_config_arguments(p)
     p.set_defaults(func=_cmd_info)
 
     p = sub.add_parser("benchmark", help="time the registration engine")

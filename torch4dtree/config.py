@@ -6,6 +6,7 @@ so a typo never silently falls back to a default.
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import json
 from dataclasses import dataclass, field
@@ -28,7 +29,7 @@ class Config:
     repair: bool = False
     rotation: str = "none"
     lambdas: tuple[float, float, float] = (1.0, 1.0, 1.0)  # (lm, ls, lp)
-    neighbourhood: int = 6
+    neighbourhood: int = 4  # DP slopes up to 4: fastest and most cycle-consistent on Pheno4D at T = 64
     notes: str = field(default="", compare=False)
 
     def __post_init__(self) -> None:
@@ -37,8 +38,10 @@ class Config:
         if self.rotation not in ROTATIONS:
             raise TreeError(f"rotation must be one of {ROTATIONS}, got {self.rotation!r}")
         self.lambdas = tuple(float(x) for x in self.lambdas)  # type: ignore[assignment]
-        if len(self.lambdas) != 3 or min(self.lambdas) < 0:
-            raise TreeError(f"lambdas must be three non-negative weights (lm, ls, lp), got {self.lambdas}")
+        if len(self.lambdas) != 3 or min(self.lambdas) < 0 or min(self.lambdas[:2]) <= 0:
+            raise TreeError(f"lambdas must be (lm > 0, ls > 0, lp >= 0), got {self.lambdas}")
+        if self.neighbourhood < 1:
+            raise TreeError(f"neighbourhood must be at least 1, got {self.neighbourhood}")
 
     def load_options(self):  # noqa: ANN201 - io.LoadOptions (io imports structures; keep this module light)
         """The :class:`~torch4dtree.io.LoadOptions` with every setting the two share taken from here."""
@@ -67,3 +70,33 @@ def load_config(path: str | Path) -> Config:
         return Config(**raw)
     except TreeError as e:
         raise TreeError(f"{path}: {e}") from None
+
+
+def add_config_arguments(parser: argparse.ArgumentParser, registration: bool = False) -> None:
+    """``--config FILE`` and the flags that override it: the loading settings, and with ``registration``
+    also ``--rotation``, ``--lambdas`` and ``--neighbourhood``. Every flag defaults to None (= not given)."""
+    parser.add_argument("--config", default=None, help="a JSON settings file (see configs/); flags given override it")
+    parser.add_argument("--T", type=int, default=None, help=f"points per branch after resampling (default {DEFAULT_T})")
+    parser.add_argument("--max-layers", type=int, default=None, help="keep at most this many branch layers")
+    parser.add_argument("--min-branch-length", type=float, default=None,
+                        help="drop SWC side branches shorter than this")
+    parser.add_argument("--repair", action="store_true", default=None,
+                        help="mend SWC cycles / parts cut off from the root (warns)")
+    if registration:
+        parser.add_argument("--rotation", choices=ROTATIONS, default=None,
+                            help="global rotation to optimise (default none: the scans share a frame)")
+        parser.add_argument("--lambdas", type=float, nargs=3, default=None, metavar=("LM", "LS", "LP"),
+                            help="metric weights of main branch, subtrees, bifurcation parameters (default 1 1 1)")
+        parser.add_argument("--neighbourhood", type=int, default=None,
+                            help="largest DP slope (default 4; 6 for strongly non-uniform warps)")
+
+
+def config_from_args(args: argparse.Namespace) -> Config:
+    """The :class:`Config` of ``--config`` (or the defaults) with the flags given on the command line on top."""
+    config = load_config(args.config) if getattr(args, "config", None) else Config()
+    names = [f.name for f in dataclasses.fields(Config)]
+    given = {name: getattr(args, name) for name in names if getattr(args, name, None) is not None}
+    try:
+        return dataclasses.replace(config, **given)
+    except TreeError as e:
+        raise TreeError(f"command line: {e}") from None

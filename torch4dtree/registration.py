@@ -36,6 +36,7 @@ and rotation), which is a valid candidate and is kept when it is better.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import os
 from collections.abc import Sequence
@@ -676,13 +677,9 @@ def add_register_arguments(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``torch4dtree register A B``: register tree file A (moving) onto B (reference)."""
     parser.add_argument("moving", help="tree file A (.swc or reference .mat), registered onto B")
     parser.add_argument("reference", help="tree file B (.swc or reference .mat)")
-    parser.add_argument("--rotation", choices=("none", "vertical", "so3"), default="none",
-                        help="global rotation to optimise (default none: the scans share a frame)")
-    parser.add_argument("--T", type=int, default=64, help="points per branch after resampling (default 64)")
-    parser.add_argument("--lambdas", type=float, nargs=3, default=(1.0, 1.0, 1.0), metavar=("LM", "LS", "LP"),
-                        help="metric weights of main branch, subtrees, bifurcation parameters (default 1 1 1)")
-    parser.add_argument("--max-layers", type=int, default=None, help="keep at most this many branch layers")
-    parser.add_argument("--repair", action="store_true", help="mend SWC cycles / parts cut off from the root")
+    from .config import add_config_arguments
+
+    add_config_arguments(parser, registration=True)
     parser.add_argument("--json", action="store_true", help="print a JSON summary instead of text")
     parser.add_argument("--out", default=None, help="folder for the registered pair and a geodesic as SWC files")
     parser.add_argument("--steps", type=int, default=5, help="trees on the geodesic written with --out (default 5)")
@@ -720,10 +717,12 @@ def run_register(args: argparse.Namespace) -> int:
     import time
     from pathlib import Path
 
+    from .config import config_from_args
     from .geodesic import geodesic
-    from .io import LoadOptions, read_tree, write_swc
+    from .io import read_tree, write_swc
 
-    opts = LoadOptions(T=args.T, max_layers=args.max_layers, repair=args.repair, dtype=torch.float64)
+    cfg = config_from_args(args)
+    opts = dataclasses.replace(cfg.load_options(), dtype=torch.float64)
     trees = []
     for path in (args.moving, args.reference):
         tree = read_tree(path, opts)
@@ -732,7 +731,8 @@ def run_register(args: argparse.Namespace) -> int:
         trees.append(tree)
     moving, reference = trees
     t0 = time.perf_counter()
-    res = register_trees(moving, reference, lambdas=args.lambdas, rotation=args.rotation)
+    res = register_trees(moving, reference, lambdas=cfg.lambdas, rotation=cfg.rotation,
+                         neighbourhood=cfg.neighbourhood)
     seconds = time.perf_counter() - t0
     written: list[str] = []
     if args.image:

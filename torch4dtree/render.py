@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 
 from .io.files import publish_file, temporary_path, write_bytes_safely
-from .structures import DEFAULT_T, TreeError, Trees, TreeSequence
+from .structures import TreeError, Trees, TreeSequence
 
 __all__ = [
     "GL_PACKAGES", "LABEL_PALETTE", "LAYER_COLORS", "UNLABELLED_COLOR", "VIEWS", "RenderOptions",
@@ -848,13 +848,15 @@ def add_render_arguments(parser: argparse.ArgumentParser) -> None:
                              "(branch identities from the SWC type column; equal labels share a colour)")
     parser.add_argument("--title", default=None, help="title written above grid images and videos")
     parser.add_argument("--overwrite", action="store_true", help="replace the output file if it exists")
-    parser.add_argument("--repair", action="store_true", help="repair SWC files with cycles or several roots")
-    parser.add_argument("--T", type=int, default=DEFAULT_T, help="points per branch (default: %(default)s)")
+    from .config import add_config_arguments
+
+    add_config_arguments(parser)
 
 
 def run_render(args: argparse.Namespace) -> int:
     """Run ``torch4dtree render``; returns the process exit code (errors go to stderr)."""
-    from .io import DatasetError, LoadOptions, read_dataset, read_sequence, read_tree
+    from .config import config_from_args
+    from .io import DatasetError, read_dataset, read_sequence, read_tree
     from .io.dataset import is_sequence_folder
 
     out: Path = args.out
@@ -866,7 +868,7 @@ def run_render(args: argparse.Namespace) -> int:
         if out.exists() and not args.overwrite:
             raise FileExistsError(f"{out} exists; pass --overwrite to replace it")
         # label colouring reads branch identities from the SWC type column (as synthetic plants store them)
-        load = LoadOptions(T=args.T, repair=args.repair, labels_from_type=args.color == "label")
+        load = replace(config_from_args(args).load_options(), labels_from_type=args.color == "label")
         path: Path = args.path
         common = dict(view=args.view, color=args.color, elevation=args.elevation)
         single = args.size or (512, 512)
