@@ -36,9 +36,12 @@ from .curves import (
     warp_srvf,
 )
 from .rotation import axis_rotation, check_rotation_mode, optimal_rotation
+from .warp_refinement import gauss_newton_torch
 
 try:  # numba is optional: without it the torch backend is used everywhere
     import numba
+
+    from .warp_refinement import _nb_gauss_newton
 
     HAVE_NUMBA = True
 except ImportError:  # pragma: no cover - exercised only without numba
@@ -162,9 +165,6 @@ def _step_arrays(n: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 # ----------------------------------------------------------------------------- numba backend
-
-# halvings of the pattern search of one warp node in the refinement (final step = interval / 2^(steps+1))
-REFINE_STEPS = 8
 
 if HAVE_NUMBA:
 
@@ -520,128 +520,6 @@ if HAVE_NUMBA:
         return _nb_dp_tab(q1, QW, SS, off, A, Bs, lo, hi, gamma)
 
     @numba.njit(cache=True, boundscheck=False)
-    def _nb_at(beta2: np.ndarray, x: float, out: np.ndarray) -> None:
-        """``beta2`` at parameter ``x`` (as curves.interpolate_curve)."""
-        M = beta2.shape[0] - 1
-        y = min(max(x, 0.0), 1.0) * M
-        f = min(math.floor(y), M - 1)
-        r = y - f
-        for c in range(beta2.shape[1]):
-            out[c] = beta2[f, c] + r * (beta2[f + 1, c] - beta2[f, c])
-
-    @numba.njit(cache=True, boundscheck=False)
-    def _nb_seg(q1: np.ndarray, m: int, p0: np.ndarray, p1: np.ndarray) -> float:
-        """``M |q1_m - q|^2`` with ``q`` the SRVF of the segment from point ``p0`` to ``p1``."""
-        M, d = q1.shape
-        nv = 0.0
-        for c in range(d):
-            v = (p1[c] - p0[c]) * M
-            nv += v * v
-        sc = M / math.sqrt(math.sqrt(nv)) if nv > 0 else 0.0
-        e = 0.0
-        for c in range(d):
-            x = q1[m, c] - (p1[c] - p0[c]) * sc
-            e += x * x
-        return e
-
-    @numba.njit(cache=True, boundscheck=False, inline="always")
-    def _nb_seg3(q1: np.ndarray, m: int, a0: float, a1: float, a2: float, b0: float, b1: float, b2: float,
-                 M: int) -> float:
-        """``_nb_seg`` for d = 3 on scalars (the same operations in the same order)."""
-        v0 = (b0 - a0) * M
-        v1 = (b1 - a1) * M
-        v2 = (b2 - a2) * M
-        nv = v0 * v0 + v1 * v1 + v2 * v2
-        sc = M / math.sqrt(math.sqrt(nv)) if nv > 0 else 0.0
-        x0 = q1[m, 0] - (b0 - a0) * sc
-        x1 = q1[m, 1] - (b1 - a1) * sc
-        x2 = q1[m, 2] - (b2 - a2) * sc
-        return x0 * x0 + x1 * x1 + x2 * x2
-
-    @numba.njit(cache=True, boundscheck=False, inline="always")
-    def _nb_point3(beta2: np.ndarray, x: float, M: int) -> tuple[float, float, float]:
-        """The 3D polyline ``beta2 (M+1, 3)`` at parameter ``x`` (clamped to [0, 1]), as three scalars."""
-        y = min(max(x, 0.0), 1.0) * M
-        f = min(math.floor(y), M - 1)
-        r = y - f
-        return (beta2[f, 0] + r * (beta2[f + 1, 0] - beta2[f, 0]),
-                beta2[f, 1] + r * (beta2[f + 1, 1] - beta2[f, 1]),
-                beta2[f, 2] + r * (beta2[f + 1, 2] - beta2[f, 2]))
-
-    @numba.njit(cache=True, boundscheck=False)
-    def _nb_refine3(q1: np.ndarray, beta2: np.ndarray, gamma: np.ndarray, sweeps: int, steps: int) -> None:
-        """``_nb_refine`` for d = 3 (scalar code: no temporary arrays), same results."""
-        M = q1.shape[0]
-        for _ in range(sweeps):
-            for parity in range(1, 3):
-                for m in range(parity, M, 2):
-                    a = gamma[m - 1]
-                    b = gamma[m + 1]
-                    cur = gamma[m]
-                    a0, a1, a2 = _nb_point3(beta2, a, M)
-                    b0, b1, b2 = _nb_point3(beta2, b, M)
-                    x0, x1, x2 = _nb_point3(beta2, cur, M)
-                    fcur = _nb_seg3(q1, m - 1, a0, a1, a2, x0, x1, x2, M) + _nb_seg3(q1, m, x0, x1, x2, b0, b1, b2, M)
-                    delta = 0.25 * (b - a)
-                    for _ in range(steps):
-                        best = cur
-                        fbest = fcur
-                        for sign in (-1.0, 1.0):
-                            x = cur + sign * delta
-                            if a <= x <= b:
-                                x0, x1, x2 = _nb_point3(beta2, x, M)
-                                fx = (_nb_seg3(q1, m - 1, a0, a1, a2, x0, x1, x2, M)
-                                      + _nb_seg3(q1, m, x0, x1, x2, b0, b1, b2, M))
-                                if fx < fbest:
-                                    best = x
-                                    fbest = fx
-                        cur = best
-                        fcur = fbest
-                        delta *= 0.5
-                    gamma[m] = cur
-
-    @numba.njit(cache=True, boundscheck=False)
-    def _nb_refine(q1: np.ndarray, beta2: np.ndarray, gamma: np.ndarray, sweeps: int, steps: int) -> None:
-        """Lower the energy by moving single warp nodes inside their neighbours' interval (red-black sweeps).
-
-        Each node does a pattern search of ``steps`` halvings and only accepts improvements, so the
-        warp stays monotone with fixed ends and the energy never increases.
-        """
-        M, d = q1.shape
-        if d == 3:
-            _nb_refine3(q1, beta2, gamma, sweeps, steps)
-            return
-        pa = np.empty(d)
-        pb = np.empty(d)
-        px = np.empty(d)
-        for _ in range(sweeps):
-            for parity in range(1, 3):
-                for m in range(parity, M, 2):
-                    a = gamma[m - 1]
-                    b = gamma[m + 1]
-                    cur = gamma[m]
-                    _nb_at(beta2, a, pa)
-                    _nb_at(beta2, b, pb)
-                    _nb_at(beta2, cur, px)
-                    fcur = _nb_seg(q1, m - 1, pa, px) + _nb_seg(q1, m, px, pb)
-                    delta = 0.25 * (b - a)
-                    for _ in range(steps):
-                        best = cur
-                        fbest = fcur
-                        for sign in (-1.0, 1.0):
-                            x = cur + sign * delta
-                            if a <= x <= b:
-                                _nb_at(beta2, x, px)
-                                f = _nb_seg(q1, m - 1, pa, px) + _nb_seg(q1, m, px, pb)
-                                if f < fbest:
-                                    best = x
-                                    fbest = f
-                        cur = best
-                        fcur = fbest
-                        delta *= 0.5
-                    gamma[m] = cur
-
-    @numba.njit(cache=True, boundscheck=False)
     def _nb_alternate(q1: np.ndarray, beta2: np.ndarray, QW: np.ndarray, SS: np.ndarray, off: np.ndarray,
                       A: np.ndarray, Bs: np.ndarray, n: int, band: int, mode: int, up: np.ndarray, max_iters: int,
                       tol: float, refine: int, O0: np.ndarray, init: np.ndarray, gamma: np.ndarray,
@@ -671,7 +549,7 @@ if HAVE_NUMBA:
             if refine > 0:
                 if prev.shape[0] == M + 1 and _nb_energy(q1r, beta2, prev, eye) < e:
                     g[:] = prev  # the band search lost to the warp it started from
-                _nb_refine(q1r, beta2, g, refine, REFINE_STEPS)
+                _nb_gauss_newton(q1r, beta2, g, refine)
                 e = _nb_energy(q1r, beta2, g, eye)
             if e < best:
                 best = e
@@ -1119,42 +997,6 @@ class _Settings(NamedTuple):
     starts: int
 
 
-def _seg_cost(q1: Tensor, beta2: Tensor, m: Tensor, x0: Tensor, x1: Tensor) -> Tensor:
-    """Torch twin of ``_nb_seg_cost`` for nodes ``m (n,)`` and parameters ``x0, x1 (B, n)``. ``-> (B, n)``."""
-    M = q1.shape[1]
-    p0 = interpolate_curve(beta2, x0)
-    p1 = interpolate_curve(beta2, x1)
-    dp = p1 - p0
-    nv = ((dp * M) ** 2).sum(-1, keepdim=True)
-    sc = torch.where(nv > 0, M / nv.clamp_min(1e-300).sqrt().sqrt(), 0.0)
-    return ((q1[:, m] - dp * sc) ** 2).sum(-1)
-
-
-def _refine_torch(q1: Tensor, beta2: Tensor, gamma: Tensor, sweeps: int, steps: int) -> Tensor:
-    """Torch twin of ``_nb_refine`` (same red-black order, vectorised over pairs and nodes)."""
-    M = q1.shape[1]
-    gamma = gamma.clone()
-    for _ in range(sweeps):
-        for parity in (1, 2):
-            idx = torch.arange(parity, M, 2, device=q1.device)
-            if len(idx) == 0:
-                continue
-            a, b, cur = gamma[:, idx - 1], gamma[:, idx + 1], gamma[:, idx]
-            fcur = _seg_cost(q1, beta2, idx - 1, a, cur) + _seg_cost(q1, beta2, idx, cur, b)
-            delta = 0.25 * (b - a)
-            for _it in range(steps):
-                best, fbest = cur, fcur
-                for sign in (-1.0, 1.0):
-                    x = cur + sign * delta
-                    f = _seg_cost(q1, beta2, idx - 1, a, x) + _seg_cost(q1, beta2, idx, x, b)
-                    better = (a <= x) & (x <= b) & (f < fbest)
-                    best, fbest = torch.where(better, x, best), torch.where(better, f, fbest)
-                cur, fcur = best, fbest
-                delta = delta * 0.5
-            gamma[:, idx] = cur
-    return gamma
-
-
 _MODES = {"none": 0, "vertical": 1, "so3": 2}
 
 
@@ -1202,7 +1044,7 @@ def _alternate_torch(q1: Tensor, q2: Tensor, n: int, band: int | None, rotation:
         if refine > 0:
             if prev is not None:
                 g = torch.where((warp_energy(q1r, q2, prev) < e)[:, None], prev, g)
-            g = _refine_torch(q1r, beta2, g, refine, REFINE_STEPS)
+            g = gauss_newton_torch(q1r, beta2, g, refine)
             e = warp_energy(q1r, q2, g)
         keep(e, g, Ocur)
         if rotation == "none":
@@ -1350,8 +1192,9 @@ def dp_warp(q1: Tensor, q2: Tensor, neighbourhood: int = 6, band: int | None = 4
         band_neighbourhood: steps of the banded (finer) DPs (``None``: ``neighbourhood``). The
             defaults (6 on the coarse grid, 5 in a band of 4 cells) are a speed / accuracy trade-off
             measured in benchmarks/README.md; ``band=None`` gives the exact lattice optimum.
-        refine: sweeps of a local search that moves warp nodes off the lattice (0 = pure DP);
-            it only accepts improvements, so the warp stays monotone and the energy only decreases.
+        refine: iterations of a damped Gauss-Newton refinement that moves the warp's nodes off the
+            lattice (0 = pure DP; ``torch4dtree.warp_refinement``); it only accepts steps that lower
+            the energy and keeps the warp strictly monotone.
         backend: ``"numba"`` (CPU), ``"torch"`` (any device) or ``"auto"`` (numba for CPU tensors).
 
     Returns:
@@ -1375,7 +1218,7 @@ def register_curves(moving: Tensor, reference: Tensor, rotation: str = "none", s
                     neighbourhood: int = 3, band: int | None = 4, coarse: int | None = 16,
                     band_neighbourhood: int | None = 4,
                     up: Tensor | tuple[float, float, float] | None = None, max_iters: int = 6,
-                    fine_iters: int = 1, tol: float = 1e-6, refine: int = 2, starts: int | None = None,
+                    fine_iters: int = 1, tol: float = 1e-6, refine: int = 4, starts: int | None = None,
                     backend: str = "auto") -> CurveRegistration:
     """Elastic registration of ``moving`` onto ``reference``: ``min_{gamma,O} ||q_ref - O (q_mov o gamma)||``.
 
