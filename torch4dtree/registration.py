@@ -496,6 +496,8 @@ def register_to_reference(trees: Trees, reference: Trees, lambdas: Sequence[floa
         neighbourhood, band, coarse, refine: DP settings, see :func:`torch4dtree.warping.dp_warp`. The
             default (full lattice, slopes up to 4) was the fastest at T = 64 on Pheno4D and gave the most
             cycle-consistent correspondences; use ``neighbourhood=6`` for strongly non-uniform warps.
+            ``refine > 0`` lowers each energy but made cycle consistency worse at every eps on Pheno4D
+            (``.mat`` trees, T = 256: 0.27 -> 0.59 % at eps 0.1 with ``refine=4``), so it is off.
         prune: skip subtree pairs that provably cannot be matched (exact: does not change the result).
 
     Returns:
