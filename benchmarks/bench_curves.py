@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from torch4dtree.bench import benchmark_curves
+from torch4dtree.bench.curves import benchmark_curves
 
 
 def fmt(x, unit: str = "") -> str:

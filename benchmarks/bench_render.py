@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from torch4dtree.io import LoadOptions, read_sequence
-from torch4dtree.render import (
+from torch4dtree.render.frames import (
     RenderOptions,
     _prepare,
     _render_frames,

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import argparse
 
-from torch4dtree.bench_trees import (
+from torch4dtree.bench.trees import (
     PAPER_SECONDS,
     benchmark_all_pairs,
     benchmark_cross_plant_accuracy,

@@ -5,7 +5,7 @@ import pytest
 
 from torch4dtree.cli import main
 from torch4dtree.config import Config, load_config
-from torch4dtree.structures import TreeError
+from torch4dtree.trees.structures import TreeError
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 

@@ -7,10 +7,10 @@ import pytest
 import torch
 from test_registration import random_tree
 
-from torch4dtree.aligned import AlignedTrees
 from torch4dtree.curves import interpolate_curve
-from torch4dtree.geodesic import geodesic, geodesic_aligned
-from torch4dtree.registration import register_trees
+from torch4dtree.trees.aligned import AlignedTrees
+from torch4dtree.trees.geodesic import geodesic, geodesic_aligned
+from torch4dtree.trees.registration import register_trees
 
 
 @pytest.fixture(scope="module")

@@ -21,8 +21,8 @@ from torch4dtree.io import (
     time_from_name,
     write_swc,
 )
-from torch4dtree.skeleton import skeleton_to_branches
-from torch4dtree.structures import TreeError, Trees
+from torch4dtree.trees.skeleton import skeleton_to_branches
+from torch4dtree.trees.structures import TreeError, Trees
 
 GOOD = """# a small tree
 1 0 0 0 0 1 -1

@@ -8,18 +8,17 @@ import numpy as np
 import pytest
 import torch
 
-from torch4dtree.aligned import AlignedTrees, subtree_sq_norms
-from torch4dtree.correspondence import branch_accuracy, cycle_consistency, map_points
-from torch4dtree.curves import srvf_sq_norm, warp_curve
-from torch4dtree.registration import (
+from torch4dtree.curves import random_warp, srvf_sq_norm, warp_curve
+from torch4dtree.curves.rotation import axis_rotation, random_rotation
+from torch4dtree.trees.aligned import AlignedTrees, subtree_sq_norms
+from torch4dtree.trees.correspondence import branch_accuracy, cycle_consistency, map_points
+from torch4dtree.trees.registration import (
     index_order_matches,
     pairwise_distances,
     register_to_reference,
     register_trees,
 )
-from torch4dtree.rotation import axis_rotation, random_rotation
-from torch4dtree.structures import Trees
-from torch4dtree.warping import random_warp
+from torch4dtree.trees.structures import Trees
 
 T = 24
 
@@ -228,7 +227,7 @@ def test_many_to_one_matches_one_by_one_and_pairwise():
 
 
 def test_pairwise_distances_in_processes(monkeypatch):
-    import torch4dtree.registration as reg
+    import torch4dtree.trees.registration as reg
 
     monkeypatch.setattr(reg, "MIN_PAIRS_PER_PROCESS", 1)  # force the pool even for 3 pairs
     rng = np.random.default_rng(8)
@@ -250,7 +249,7 @@ def test_map_points_follows_the_warp():
 
 
 def test_synthetic_plants_correspondence():
-    data = pytest.importorskip("torch4dtree.data")
+    import torch4dtree.data as data
     # 10 frames over the growth period: the stem grows by at most ~37% between frames, as between Pheno4D
     # scans. (With 6 frames, +55% steps, a leaf that triples in length between two frames is sometimes
     # cheaper to match to a look-alike: the ground truth then costs ~1% more than the match found.)
@@ -264,7 +263,7 @@ def test_synthetic_plants_correspondence():
 def test_pheno4d_consecutive_days():
     from conftest import PHENO4D, pheno4d
 
-    from torch4dtree.bench_trees import consecutive_pairs
+    from torch4dtree.bench.trees import consecutive_pairs
 
     pheno4d("swc")  # skips (fails in CI) without the data
     pairs = consecutive_pairs(PHENO4D, T=T, max_pairs=None)
@@ -306,7 +305,7 @@ def test_invariance_with_default_settings_moderate_warps():
 def test_synthetic_plants_correspond_across_plants(kind):
     """Different plants of a kind (organs at plant-specific heights and azimuths, plant-specific growth
     clocks, so the same frame holds different numbers of leaves): organ k matches organ k, extras null."""
-    data = pytest.importorskip("torch4dtree.data")
+    import torch4dtree.data as data
     plants = data.synthetic_dataset(kind, 3, 0, n_frames=6, T=T, dtype=torch.float64)
     accs = []
     for f in (2, 5):
@@ -320,7 +319,7 @@ def test_children_aware_parent_warp():
     """A straight stem carries one child at s = 0.3 in A and 0.6 in B. The stem's own DP warp is the
     identity (any other stretches it), which leaves the child 0.3 away: with a large lp the metric's
     infimum instead warps the stem so the child lands on its partner (stem cost L int (1 - sqrt(g'))^2)."""
-    import torch4dtree.registration as reg
+    import torch4dtree.trees.registration as reg
 
     stem = torch.stack([torch.zeros(T), torch.zeros(T), torch.linspace(0, 1, T)], 1).double()
     leaf = torch.stack([torch.linspace(0, 0.8, T), torch.zeros(T), torch.zeros(T)], 1).double()
@@ -347,7 +346,7 @@ def test_children_aware_parent_warp():
 def test_all_pairs_benchmark_counts_every_frame():
     from conftest import PHENO4D, pheno4d
 
-    from torch4dtree.bench_trees import benchmark_all_pairs, plant_frames
+    from torch4dtree.bench.trees import benchmark_all_pairs, plant_frames
 
     pheno4d("swc")
     n = sum(t is not None for _, _, _, ts in plant_frames(PHENO4D, T=8, kinds=("maize",)) for t in ts)

@@ -19,17 +19,17 @@ imageio = pytest.importorskip("imageio.v2")
 from conftest import PHENO4D, pheno4d  # noqa: E402
 
 from torch4dtree import Trees, TreeSequence  # noqa: E402
+from torch4dtree.cli.render import add_arguments as add_render_arguments  # noqa: E402
+from torch4dtree.cli.render import run as run_render  # noqa: E402
 from torch4dtree.io import LoadOptions, read_sequence  # noqa: E402
 from torch4dtree.render import (  # noqa: E402
     GL_PACKAGES,
     LABEL_PALETTE,
     LAYER_COLORS,
-    add_render_arguments,
     branch_colors,
     render_grid,
     render_sequence,
     render_trees,
-    run_render,
     save_image,
     save_video,
     tree_meshes,

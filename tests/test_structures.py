@@ -4,7 +4,7 @@ import torch
 from conftest import random_tree_branches
 
 from torch4dtree.curves import curve_length, project_on_polyline
-from torch4dtree.structures import TreeError, Trees, TreeSequence
+from torch4dtree.trees.structures import TreeError, Trees, TreeSequence
 
 
 def make_trees(rng, n=3, T=24):

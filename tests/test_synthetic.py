@@ -22,7 +22,7 @@ from torch4dtree.data import (
     write_dataset,
 )
 from torch4dtree.io import LoadOptions, read_dataset, read_sequence
-from torch4dtree.structures import Trees
+from torch4dtree.trees.structures import Trees
 
 KINDS = ("tomato", "maize")
 

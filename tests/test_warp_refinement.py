@@ -1,4 +1,4 @@
-"""The Gauss-Newton refinement of DP warps (torch4dtree.warp_refinement)."""
+"""The Gauss-Newton refinement of DP warps (torch4dtree.curves.refinement)."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ import pytest
 import torch
 from test_warping import rough_curves, smooth_curves
 
-from torch4dtree import warp_refinement as R
-from torch4dtree import warping as W
+from torch4dtree import curves as W
+from torch4dtree.curves import refinement as R
 from torch4dtree.curves import srvf, warp_curve
 
 

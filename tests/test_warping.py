@@ -1,4 +1,4 @@
-"""Properties of the elastic registration engine (torch4dtree.warping / torch4dtree.rotation)."""
+"""Properties of the elastic registration engine (torch4dtree.curves: DP warps, rotations, register_curves)."""
 
 from __future__ import annotations
 
@@ -7,9 +7,9 @@ import math
 import pytest
 import torch
 
-from torch4dtree import warping as W
-from torch4dtree.curves import curve_length, srvf, warp_curve, warp_srvf
-from torch4dtree.rotation import axis_rotation, optimal_rotation, random_rotation
+from torch4dtree import curves as W
+from torch4dtree.curves import curve_length, dp_numba, srvf, warp_curve, warp_srvf
+from torch4dtree.curves.rotation import axis_rotation, optimal_rotation, random_rotation
 
 
 def smooth_curves(B: int, T: int, d: int = 3, seed: int = 0, modes: int = 5,
@@ -165,7 +165,7 @@ def test_never_increases_energy_over_identity(backend: str) -> None:
 def test_batch_equals_one_by_one(monkeypatch: pytest.MonkeyPatch) -> None:
     x, y = smooth_curves(4, 40, seed=14), smooth_curves(4, 40, seed=15)
     for min_pairs in (10**9, 2):  # serial kernel, then the parallel one
-        monkeypatch.setattr(W, "PARALLEL_MIN_PAIRS", min_pairs)
+        monkeypatch.setattr(dp_numba, "PARALLEL_MIN_PAIRS", min_pairs)
         batch = W.register_curves(y, x, rotation="so3", coarse=16)
         for b in range(4):
             one = W.register_curves(y[b], x[b], rotation="so3", coarse=16)

@@ -12,7 +12,7 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .structures import DEFAULT_T, TreeError
+from .trees.structures import DEFAULT_T, TreeError
 
 ROTATIONS = ("none", "vertical", "so3")
 # the settings that decide how files become trees (the fields of io.LoadOptions that a config sets)

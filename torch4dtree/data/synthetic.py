@@ -51,7 +51,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ..structures import DEFAULT_T, Trees, TreeSequence
+from ..trees.structures import DEFAULT_T, Trees, TreeSequence
 
 KINDS = ("tomato", "maize")
 

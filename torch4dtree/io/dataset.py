@@ -28,7 +28,7 @@ from pathlib import Path
 
 import torch
 
-from ..structures import DEFAULT_T, TreeError, Trees, TreeSequence
+from ..trees.structures import DEFAULT_T, TreeError, Trees, TreeSequence
 from .mat import read_mat_tree
 from .swc import read_swc
 

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 import scipy.io
 
-from ..structures import DEFAULT_T, TreeError, Trees
+from ..trees.structures import DEFAULT_T, TreeError, Trees
 
 TREE_VARIABLES = ("compTrees", "all_compTrees")
 

@@ -10,8 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..skeleton import repair_skeleton, skeleton_to_trees, trees_to_skeleton, validate_skeleton
-from ..structures import DEFAULT_T, TreeError, Trees
+from ..trees.skeleton import repair_skeleton, skeleton_to_trees, trees_to_skeleton, validate_skeleton
+from ..trees.structures import DEFAULT_T, TreeError, Trees
 from .files import write_text_safely
 
 

@@ -21,115 +21,29 @@ never needs OpenGL.
 
 from __future__ import annotations
 
-import argparse
 import math
 import os
 import sys
 from collections.abc import Sequence
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from .io.files import publish_file, temporary_path, write_bytes_safely
-from .structures import TreeError, Trees, TreeSequence
-
-__all__ = [
-    "GL_PACKAGES", "LABEL_PALETTE", "LAYER_COLORS", "UNLABELLED_COLOR", "VIEWS", "RenderOptions",
-    "add_render_arguments", "branch_colors", "render_grid", "render_sequence", "render_trees", "run_render",
-    "save_frames", "save_image", "save_video", "tree_meshes",
-]
-
-# Layer colours of the paper's figures: red main branch, blue, yellow, purple, then green, orange, cyan.
-LAYER_COLORS: np.ndarray = np.array(
-    [[214, 39, 40], [31, 94, 214], [240, 196, 25], [148, 62, 184], [44, 160, 44], [255, 127, 14], [23, 190, 207]],
-    dtype=np.uint8,
+from ..io.files import publish_file, temporary_path, write_bytes_safely
+from ..trees.structures import TreeError, Trees, TreeSequence
+from .options import (
+    COLOR_MODES,
+    GL_PACKAGES,
+    IMAGE_SUFFIXES,
+    LABEL_PALETTE,
+    LAYER_COLORS,
+    UNLABELLED_COLOR,
+    VIDEO_SUFFIXES,
+    RenderOptions,
+    _options,
 )
-# Correspondence colours (label l -> LABEL_PALETTE[l % 20]): distinct, saturated, no grey.
-LABEL_PALETTE: np.ndarray = np.array(
-    [[230, 25, 75], [60, 180, 75], [0, 130, 200], [245, 130, 48], [145, 30, 180], [70, 240, 240],
-     [240, 50, 230], [210, 245, 60], [0, 128, 128], [170, 110, 40], [128, 0, 0], [0, 0, 128],
-     [128, 128, 0], [255, 225, 25], [250, 190, 212], [170, 255, 195], [220, 190, 255], [255, 215, 180],
-     [0, 200, 120], [100, 60, 200]],
-    dtype=np.uint8,
-)
-UNLABELLED_COLOR: np.ndarray = np.array([150, 150, 150], dtype=np.uint8)
-VIEWS = ("front", "side", "top", "orbit")
-COLOR_MODES = ("layer", "label")
-VIDEO_SUFFIXES = (".gif", ".mp4")
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
-# Debian/Ubuntu packages that give pyrender an EGL context on Mesa's software renderer (see .ci/system-packages.sh).
-GL_PACKAGES = "libegl1 libegl-mesa0 libgl1 libgl1-mesa-dri libxrender1"
-
-
-@dataclass(frozen=True)
-class RenderOptions:
-    """How trees are drawn. Every render function accepts these fields as keyword arguments.
-
-    Attributes:
-        size: frame (or grid cell) size in pixels, ``W`` or ``(W, H)``.
-        view: ``front`` (looking along +y), ``side`` (along -x), ``top`` (down the up axis) or
-            ``orbit`` (the camera circles the plant over the frames).
-        elevation: camera height above the horizontal plane in degrees (front, side, orbit).
-        azimuth: extra turn of the camera about the up axis in degrees.
-        color: ``layer`` (red main, blue, yellow, purple, ...) or ``label`` (equal labels share a
-            colour from :data:`LABEL_PALETTE`, label -1 grey).
-        radius: main-branch tube radius as a fraction of the largest side of the scene's bounding box.
-        thinning: radius factor per layer (layer ``d`` has ``radius * thinning**d``).
-        taper: how much a tube narrows from its base to its tip (0 = cylinder).
-        min_pixels: smallest tube radius in pixels, so thin deep branches stay visible at small sizes.
-        sides: polygon sides of a tube's cross-section.
-        margin: fraction of the frame left empty on every side.
-        fog: how much the farthest parts fade towards the white background (depth cue, 0 = none).
-        yfov: vertical field of view in degrees (perspective camera).
-        up: index of the up axis (2 = z, as in Pheno4D).
-        turns: full camera turns over an orbit.
-    """
-
-    size: int | tuple[int, int] = 512
-    view: str = "front"
-    elevation: float = 12.0
-    azimuth: float = 0.0
-    color: str = "layer"
-    radius: float = 0.009
-    thinning: float = 0.7
-    taper: float = 0.35
-    min_pixels: float = 0.75
-    sides: int = 8
-    margin: float = 0.05
-    fog: float = 0.35
-    yfov: float = 30.0
-    up: int = 2
-    turns: float = 1.0
-
-    def __post_init__(self) -> None:
-        if self.view not in VIEWS:
-            raise ValueError(f"view must be one of {VIEWS}, got {self.view!r}")
-        if self.color not in COLOR_MODES:
-            raise ValueError(f"color must be one of {COLOR_MODES}, got {self.color!r}")
-        w, h = self.wh
-        if w < 8 or h < 8:
-            raise ValueError(f"size must be at least 8 x 8 pixels, got {self.size}")
-        if self.sides < 3 or self.radius <= 0 or not 0 <= self.taper < 1 or not 0 <= self.margin < 0.5:
-            raise ValueError("need sides >= 3, radius > 0, 0 <= taper < 1 and 0 <= margin < 0.5")
-        if self.up not in (0, 1, 2):
-            raise ValueError(f"up must be 0, 1 or 2, got {self.up}")
-
-    @property
-    def wh(self) -> tuple[int, int]:
-        """``(W, H)`` in pixels."""
-        if isinstance(self.size, int):
-            return int(self.size), int(self.size)
-        return int(self.size[0]), int(self.size[1])
-
-
-def _options(options: RenderOptions | None, overrides: dict[str, Any]) -> RenderOptions:
-    known = {f.name for f in fields(RenderOptions)}
-    unknown = set(overrides) - known
-    if unknown:
-        raise TypeError(f"unknown render option(s) {sorted(unknown)}; known: {sorted(known)}")
-    return replace(options or RenderOptions(), **overrides)
 
 
 # ------------------------------------------------------------------------------------ geometry
@@ -811,104 +725,3 @@ def save_video(path: str | Path, frames: np.ndarray, fps: float = 4.0, overwrite
     finally:
         tmp.unlink(missing_ok=True)
     return path
-
-
-# ------------------------------------------------------------------------------------------ CLI
-def _parse_size(text: str) -> tuple[int, int]:
-    try:
-        parts = [int(p) for p in text.lower().replace("*", "x").split("x")]
-    except ValueError:
-        parts = []
-    if len(parts) == 1:
-        parts = parts * 2
-    if len(parts) != 2 or min(parts) < 8:
-        raise argparse.ArgumentTypeError(f"size must be WIDTH or WIDTHxHEIGHT (>= 8 pixels), got {text!r}")
-    return parts[0], parts[1]
-
-
-def add_render_arguments(parser: argparse.ArgumentParser) -> None:
-    """Arguments of ``torch4dtree render PATH --out FILE``."""
-    parser.add_argument("path", type=Path,
-                        help="a tree file (.swc, .mat), a sequence folder (frames over time) or a dataset folder "
-                             "(one sequence folder per 4D tree, each framed on its own)")
-    parser.add_argument("--out", "-o", type=Path, required=True,
-                        help="output .png (a tree; a row of frames for a sequence; rows x time for a dataset), "
-                             ".gif or .mp4 (a video over time; a turn around the plant for one tree)")
-    parser.add_argument("--size", type=_parse_size, default=None,
-                        help="WIDTH or WIDTHxHEIGHT in pixels of a frame, or of a grid cell "
-                             "(default 512 for single frames and videos, 256 per grid cell)")
-    parser.add_argument("--view", choices=VIEWS, default="front", help="camera view (default: front)")
-    parser.add_argument("--elevation", type=float, default=RenderOptions.elevation,
-                        help="camera elevation in degrees (default: %(default)s)")
-    parser.add_argument("--fps", type=float, default=4.0, help="video frames per second (default: %(default)s)")
-    parser.add_argument("--frames", type=int, default=None,
-                        help="video frames (default: one per time point; 36 for a turn around one tree)")
-    parser.add_argument("--color", choices=COLOR_MODES, default="layer",
-                        help="colour branches by layer (red, blue, yellow, purple...) or by label "
-                             "(branch identities from the SWC type column; equal labels share a colour)")
-    parser.add_argument("--title", default=None, help="title written above grid images and videos")
-    parser.add_argument("--overwrite", action="store_true", help="replace the output file if it exists")
-    from .config import add_config_arguments
-
-    add_config_arguments(parser)
-
-
-def run_render(args: argparse.Namespace) -> int:
-    """Run ``torch4dtree render``; returns the process exit code (errors go to stderr)."""
-    from .config import config_from_args
-    from .io import DatasetError, read_dataset, read_sequence, read_tree
-    from .io.dataset import is_sequence_folder
-
-    out: Path = args.out
-    suffix = out.suffix.lower()
-    video = suffix in VIDEO_SUFFIXES
-    try:
-        if not video and suffix not in IMAGE_SUFFIXES:
-            raise ValueError(f"--out must end in .png, .jpg, .gif or .mp4, got {out.name!r}")
-        if out.exists() and not args.overwrite:
-            raise FileExistsError(f"{out} exists; pass --overwrite to replace it")
-        # label colouring reads branch identities from the SWC type column (as synthetic plants store them)
-        load = replace(config_from_args(args).load_options(), labels_from_type=args.color == "label")
-        path: Path = args.path
-        common = dict(view=args.view, color=args.color, elevation=args.elevation)
-        single = args.size or (512, 512)
-        cell = args.size or (256, 256)
-        if path.is_file():
-            tree = read_tree(path, load)
-            if tree is None:
-                raise DatasetError(f"{path}: empty tree file")
-            if video:  # one tree: turn around it
-                n = args.frames or 36
-                opts = RenderOptions(size=single, **{**common, "view": "orbit"})
-                framing, r0, rmin = _prepare([tree], n, opts)
-                frames = _render_frames(_tree_geometry(tree, opts, r0, rmin), [0] * n, framing, opts)
-            else:
-                frames = render_trees(tree, size=single, **common)
-        elif path.is_dir() and is_sequence_folder(path):
-            seq = read_sequence(path, load).sequence
-            if video:
-                frames = render_sequence(seq, args.frames, size=single, caption=True, **common)
-                if args.title:
-                    frames = np.stack([_compose(f[None, None], None, None, args.title) for f in frames])
-            else:
-                cols = [f"t = {t:g}" for t in seq.times.tolist()]
-                frames = render_grid([seq], col_labels=cols, title=args.title or seq.name, size=cell, **common)
-        elif path.is_dir():
-            loaded = read_dataset(path, load)
-            seqs = [ls.sequence for ls in loaded]
-            names = [s.name for s in seqs]
-            # one camera per plant: tomatoes and maize differ in size too much to share one
-            frames = render_grid(seqs, row_labels=names, title=args.title, video=video, n_frames=args.frames,
-                                 share_camera=False, size=cell, **common)
-        else:
-            raise DatasetError(f"{path}: no such file or folder")
-        if video:
-            save_video(out, frames, fps=args.fps, overwrite=args.overwrite)
-        else:
-            save_image(out, frames[0] if frames.ndim == 4 else frames, overwrite=args.overwrite)
-    except (FileExistsError, ValueError, TreeError, RuntimeError, OSError) as e:
-        print(f"torch4dtree render: error: {e}", file=sys.stderr)
-        return 1
-    print(out)
-    return 0
-

@@ -15,9 +15,9 @@ from pathlib import Path
 
 import torch
 
-from .io import LoadOptions, read_tree
-from .registration import register_trees
-from .structures import Trees
+from ..io import LoadOptions, read_tree
+from ..trees.registration import register_trees
+from ..trees.structures import Trees
 
 __all__ = [
     "PAPER_SECONDS", "PAPER_TOMATO_SPATIAL_SECONDS", "benchmark_all_pairs", "benchmark_cycle_consistency",
@@ -81,13 +81,13 @@ def consecutive_pairs(root: str | Path | None = None, T: int = 64, kinds: tuple[
 def benchmark_all_pairs(root: str | Path | None = None, T: int = 64, kind: str = "tomato", source: str = "swc",
                         processes: int | None = None, **kwargs: object) -> dict:
     """Time the all-pairs distance matrix of every frame of every plant of one kind (within and across
-    sequences), with :func:`~torch4dtree.registration.pairwise_distances` on all cores.
+    sequences), with :func:`~torch4dtree.trees.registration.pairwise_distances` on all cores.
 
     The authors' scripts take 4-5 minutes for the tomato spatial registrations alone
     (``PAPER_TOMATO_SPATIAL_SECONDS``, the middle of that range). Returns ``{"trees", "pairs", "seconds",
     "s_per_pair", "processes", "paper_seconds", "speedup_vs_paper"}``.
     """
-    from .registration import pairwise_distances
+    from ..trees.registration import pairwise_distances
 
     trees = [t for _, _, _, ts in plant_frames(root, T, (kind,), source) for t in ts if t is not None]
     if len(trees) < 2:
@@ -161,7 +161,7 @@ def benchmark_cycle_consistency(root: str | Path | None = None, T: int = 64, rot
     """
     import numpy as np
 
-    from .correspondence import DEFAULT_EPS, PAPER_CYCLE_ERRORS, cycle_consistency
+    from ..trees.correspondence import DEFAULT_EPS, PAPER_CYCLE_ERRORS, cycle_consistency
 
     rows = []
     for kind, name, a, b in consecutive_pairs(root, T, kinds, max_pairs, source):
@@ -191,8 +191,8 @@ def benchmark_synthetic_accuracy(kinds: tuple[str, ...] = ("tomato", "maize"), s
     """
     import numpy as np
 
-    from .correspondence import branch_accuracy, cycle_consistency
-    from .data import synthetic_plant
+    from ..data import synthetic_plant
+    from ..trees.correspondence import branch_accuracy, cycle_consistency
 
     out = {}
     for kind in kinds:
@@ -225,8 +225,8 @@ def benchmark_cross_plant_accuracy(kinds: tuple[str, ...] = ("tomato", "maize"),
     """
     import numpy as np
 
-    from .correspondence import branch_accuracy
-    from .data import synthetic_dataset
+    from ..data import synthetic_dataset
+    from ..trees.correspondence import branch_accuracy
 
     out = {}
     for kind in kinds:

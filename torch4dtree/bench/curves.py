@@ -19,9 +19,10 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from .curves import curve_length, resample_polylines, srvf, srvf_sq_distance, warp_curve
-from .rotation import random_rotation
-from .warping import dp_warp, random_warp, register_curves
+from ..curves.register import dp_warp, register_curves
+from ..curves.rotation import random_rotation
+from ..curves.srvf import curve_length, resample_polylines, srvf, srvf_sq_distance, warp_curve
+from ..curves.warps import random_warp
 
 __all__ = ["benchmark_curves", "curve_pairs", "pheno4d_paths", "smooth_random_curves"]
 
@@ -53,7 +54,7 @@ def pheno4d_paths(root: str | Path, T: int, per_file: int = 4, min_nodes: int = 
 
     Returns ``(N, T, 3)`` unit-length curves (empty if the folder has no SWC file).
     """
-    from .io.swc import read_swc_skeleton
+    from ..io.swc import read_swc_skeleton
 
     paths: list[np.ndarray] = []
     for f in sorted(Path(root).glob("*/*.swc")):
@@ -162,7 +163,7 @@ def benchmark_curves(pairs: int = 1000, T: int = 100, fdasrsf_pairs: int = 40, s
         kinds: pair kinds (see :func:`curve_pairs`); ``"pheno4d"`` is skipped if its folder is missing.
         pheno4d: folder holding ``<plant>/<file>.swc``; default ``../shared/data/pheno4d/swc`` relative
             to the repository.
-        register_kw: passed to :func:`~torch4dtree.warping.register_curves`.
+        register_kw: passed to :func:`~torch4dtree.curves.register_curves`.
 
     Returns:
         A flat dict: ``pairs, T, ours_s_per_pair`` (single-pair median), ``ours_batched_s_per_pair``,
@@ -173,7 +174,7 @@ def benchmark_curves(pairs: int = 1000, T: int = 100, fdasrsf_pairs: int = 40, s
         ``None`` when it is not importable.
     """
     if pheno4d is None:
-        from .bench_trees import default_data_root
+        from .trees import default_data_root
 
         pheno4d = default_data_root() / "swc"
     cf = _fdasrsf()

@@ -24,7 +24,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from .curves import curve_length, interpolate_curve, project_on_polyline, resample_polylines
+from ..curves.srvf import curve_length, interpolate_curve, project_on_polyline, resample_polylines
 
 DEFAULT_T = 64
 

@@ -25,7 +25,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from .curves import interpolate_curve
+from ..curves.srvf import interpolate_curve
 from .registration import TreeRegistration, register_trees
 from .structures import Trees
 

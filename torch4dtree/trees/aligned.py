@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from .curves import curve_length, interpolate_curve, inverse_srvf, resample_polylines, srvf, srvf_sq_norm
+from ..curves.srvf import curve_length, interpolate_curve, inverse_srvf, resample_polylines, srvf, srvf_sq_norm
 from .structures import Trees
 
 __all__ = ["AlignedTrees", "Lambdas", "slot_weights", "subtree_sq_norms"]
@@ -201,7 +201,7 @@ class AlignedTrees:
                    ) -> AlignedTrees:
         """One tree in its own layout (slot ``i`` = branch ``i``). Needs a single-tree batch.
 
-        Use registration (:func:`torch4dtree.registration.register_trees`) to put several trees in one layout.
+        Use registration (:func:`torch4dtree.trees.registration.register_trees`) to put several trees in one layout.
         """
         if trees.num_trees != 1:
             raise ValueError("AlignedTrees.from_trees needs a single tree; register trees to share a layout")
