@@ -76,7 +76,10 @@ def test_main_branch_named_explicitly(tmp_path):
     p = write(tmp_path, GOOD)
     t = read_swc(p, T=8, main_path=[1, 2, 3, 5, 6])
     torch.testing.assert_close(t.points[0, -1], torch.tensor([2.0, 0.0, 2.5]))
-    assert t.branches_per_layer() == [[1, 1]] and t.points[1, -1, 2].item() == pytest.approx(5.0)
+    assert t.branches_per_layer() == [[1, 1]]
+    # the side branch keeps its shape (nodes 3 -> 4: straight up, 3 long), moved onto the coarse main branch
+    torch.testing.assert_close(t.points[1, -1] - t.points[1, 0], torch.tensor([0.0, 0.0, 3.0]))
+    torch.testing.assert_close(t.attachment_points()[1], t.points[1, 0])
     with pytest.raises(SWCError, match="names node 9"):
         read_swc(p, main_path=[1, 9])
     with pytest.raises(TreeError, match="not a chain"):
@@ -144,13 +147,13 @@ def test_longest_path_rule_and_limits():
                     [2.8, 0, 1],
                     [0.1, 0, 3]], float)  # 9 spur from node 3
     parent = np.array([-1, 0, 1, 2, 3, 1, 5, 6, 6, 3])
-    polylines, parents, paths = skeleton_to_branches(xyz, parent)
+    polylines, parents, paths = skeleton_to_branches(xyz, parent, hierarchy="longest")
     assert paths[0] == [0, 1, 2, 3, 4]
     assert [1, 5, 6, 8] in paths and [6, 7] in paths and [3, 9] in paths
     assert parents[paths.index([6, 7])] == paths.index([1, 5, 6, 8])
-    _, _, p2 = skeleton_to_branches(xyz, parent, max_layers=2)
+    _, _, p2 = skeleton_to_branches(xyz, parent, max_layers=2, hierarchy="longest")
     assert [6, 7] not in p2 and len(p2) == 3
-    _, _, p3 = skeleton_to_branches(xyz, parent, min_branch_length=0.5)
+    _, _, p3 = skeleton_to_branches(xyz, parent, min_branch_length=0.5, hierarchy="longest")
     assert [3, 9] not in p3
     _, _, p4 = skeleton_to_branches(xyz, parent, main_path=[0, 1, 5, 6, 8])
     assert p4[0] == [0, 1, 5, 6, 8] and [1, 2, 3, 4] in p4

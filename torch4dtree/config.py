@@ -16,7 +16,7 @@ from .trees.structures import DEFAULT_T, TreeError
 
 ROTATIONS = ("none", "vertical", "so3")
 # the settings that decide how files become trees (the fields of io.LoadOptions that a config sets)
-LOAD_SETTINGS = ("T", "max_layers", "min_branch_length", "repair")
+LOAD_SETTINGS = ("T", "max_layers", "min_branch_length", "repair", "hierarchy")
 
 
 @dataclass
@@ -27,6 +27,7 @@ class Config:
     max_layers: int | None = None
     min_branch_length: float = 0.0
     repair: bool = False
+    hierarchy: str = "straightest"  # skeleton -> branches rule (torch4dtree.trees.skeleton.HIERARCHIES)
     rotation: str = "none"
     lambdas: tuple[float, float, float] = (1.0, 1.0, 1.0)  # (lm, ls, lp)
     neighbourhood: int = 4  # DP slopes up to 4: fastest and most cycle-consistent on Pheno4D at T = 64
@@ -35,6 +36,10 @@ class Config:
     def __post_init__(self) -> None:
         if self.T < 2:
             raise TreeError(f"T must be at least 2, got {self.T}")
+        from .trees.skeleton import HIERARCHIES
+
+        if self.hierarchy not in HIERARCHIES:
+            raise TreeError(f"hierarchy must be one of {HIERARCHIES}, got {self.hierarchy!r}")
         if self.rotation not in ROTATIONS:
             raise TreeError(f"rotation must be one of {ROTATIONS}, got {self.rotation!r}")
         self.lambdas = tuple(float(x) for x in self.lambdas)  # type: ignore[assignment]
@@ -82,6 +87,9 @@ def add_config_arguments(parser: argparse.ArgumentParser, registration: bool = F
                         help="drop SWC side branches shorter than this")
     parser.add_argument("--repair", action="store_true", default=None,
                         help="mend SWC cycles / parts cut off from the root (warns)")
+    parser.add_argument("--hierarchy", choices=("straightest", "heaviest", "longest"), default=None,
+                        help="which child continues a branch at an SWC branch point (default straightest: stable as "
+                             "plants grow; longest = the paper's longest-path rule)")
     if registration:
         parser.add_argument("--rotation", choices=ROTATIONS, default=None,
                             help="global rotation to optimise (default none: the scans share a frame)")

@@ -50,6 +50,7 @@ class LoadOptions:
     repair: bool = False
     labels_from_type: bool = False
     dtype: torch.dtype = torch.float32
+    hierarchy: str = "straightest"  # how a skeleton's branch points are resolved (torch4dtree.trees.skeleton)
 
 
 @dataclass
@@ -69,7 +70,7 @@ def read_tree(path: str | Path, options: LoadOptions | None = None) -> Trees | N
         raise DatasetError(f"{path}: no such file")
     if path.suffix.lower() == ".swc":
         tree = read_swc(path, T=o.T, max_layers=o.max_layers, min_branch_length=o.min_branch_length,
-                        labels_from_type=o.labels_from_type, repair=o.repair)
+                        labels_from_type=o.labels_from_type, repair=o.repair, hierarchy=o.hierarchy)
     elif path.suffix.lower() == ".mat":
         tree = read_mat_tree(path, T=o.T)
     else:

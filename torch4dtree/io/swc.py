@@ -102,12 +102,14 @@ def read_swc(
     labels_from_type: bool = False,
     repair: bool = False,
     main_path: Sequence[int] | None = None,
+    hierarchy: str = "straightest",
 ) -> Trees:
-    """Read an SWC file as a single-tree :class:`Trees` (longest-path rule, SPEC §2).
+    """Read an SWC file as a single-tree :class:`Trees` (branch hierarchy by the ``hierarchy`` rule, SPEC §2;
+    see :mod:`torch4dtree.trees.skeleton`).
 
     With ``labels_from_type`` the type column holds branch identities (as the synthetic plants
     write them) and becomes :attr:`Trees.label`. ``main_path`` names the main branch explicitly as
-    the file's node ids from the root (default: the longest root-to-leaf path).
+    the file's node ids from the root (default: chosen by the rule).
     """
     sk = read_swc_skeleton(path, repair)
     path_index = None
@@ -119,7 +121,7 @@ def read_swc(
         path_index = [index[int(nid)] for nid in main_path]
     return skeleton_to_trees(
         sk.xyz, sk.parent, T=T, max_layers=max_layers, min_branch_length=min_branch_length, main_path=path_index,
-        node_labels=sk.types if labels_from_type else None, where=str(path), ids=sk.ids,
+        node_labels=sk.types if labels_from_type else None, where=str(path), ids=sk.ids, hierarchy=hierarchy,
     )
 
 

@@ -1,9 +1,19 @@
 """Skeleton graphs (nodes + parent links) to branch hierarchies and back.
 
-The rule (SPEC §2, the one used for the published Pheno4D trees): the main branch is the
-longest root-to-leaf path; then, recursively, every child of a node of a branch that is not
-the branch's own continuation starts a side branch that follows the longest path down its
-subtree. Path length is Euclidean length along the skeleton.
+A skeleton does not say which child continues a branch at a branch point; a **hierarchy rule**
+decides it (SPEC §2). The main branch starts at the root and, at every branch point, continues
+into the child the rule picks; every other child starts a side branch, decomposed the same way.
+
+* ``"longest"``: the child with the longest path down to a leaf (the paper's rule). Unstable under
+  growth: the main branch runs up the stem and into whichever organ is longest at the top.
+* ``"heaviest"``: the child whose subtree has the largest total length.
+* ``"straightest"``: the child whose first stretch (``window``) turns least from the branch's
+  incoming direction, among children whose subtree is not negligible (spurs); the heaviest where
+  there is no incoming direction (at the root). Stems, rachises and shoots run straight through
+  their nodes while leaves and leaflets leave at an angle, whichever is longer today.
+
+Lengths are Euclidean along the skeleton and directions are measured over arc-length windows, so
+the hierarchy does not depend on how densely the nodes sample the branches.
 """
 
 from __future__ import annotations
@@ -108,6 +118,105 @@ def _children(parent: np.ndarray) -> list[list[int]]:
     return children
 
 
+HIERARCHIES = ("straightest", "heaviest", "longest")
+# straightest rule: children whose subtree is shorter than this many windows are spurs, not candidates
+SPUR_WINDOWS = 0.5
+# ... and candidates whose turning angles differ by less than this (radians) are told apart by weight
+ANGLE_TIE = 0.15
+
+
+def default_window(xyz: np.ndarray, parent: np.ndarray, edge: np.ndarray) -> float:
+    """Direction window of the ``"straightest"`` rule: 3 % of the farthest node's path distance from the
+    root, at least three median edges (so it spans a few nodes however densely they sample the curve)."""
+    dist = _root_distances(parent, edge)
+    real = edge[parent >= 0]
+    median_edge = float(np.median(real)) if len(real) else 0.0
+    return max(0.03 * float(dist.max()), 3.0 * median_edge)
+
+
+def _root_distances(parent: np.ndarray, edge: np.ndarray) -> np.ndarray:
+    """``(n,)`` path length from the root to every node."""
+    dist = np.zeros(len(parent))
+    children = _children(parent)
+    stack = [int(np.nonzero(parent == -1)[0][0])]
+    while stack:
+        v = stack.pop()
+        for c in children[v]:
+            dist[c] = dist[v] + edge[c]
+            stack.append(c)
+    return dist
+
+
+def _point_up(xyz: np.ndarray, parent: np.ndarray, edge: np.ndarray, v: int, length: float) -> np.ndarray | None:
+    """The point ``length`` back along the path from node ``v`` towards the root (None at the root)."""
+    if parent[v] < 0:
+        return None
+    left = length
+    while parent[v] >= 0:
+        if edge[v] >= left:
+            return xyz[v] + (xyz[parent[v]] - xyz[v]) * (left / edge[v])
+        left -= edge[v]
+        v = int(parent[v])
+    return xyz[v]
+
+
+def _point_down(xyz: np.ndarray, parent: np.ndarray, children: list[list[int]], edge: np.ndarray,
+                down: np.ndarray, c: int, length: float) -> np.ndarray:
+    """The point ``length`` along the skeleton from the parent of ``c`` through ``c`` (heaviest way down)."""
+    left = length
+    while edge[c] < left:
+        left -= edge[c]
+        if not children[c]:
+            return xyz[c]
+        c = max(children[c], key=lambda k: down[k])
+    p = parent[c]
+    return xyz[p] + (xyz[c] - xyz[p]) * (left / edge[c])
+
+
+def continuation_children(xyz: np.ndarray, parent: np.ndarray, order: np.ndarray, children: list[list[int]],
+                          edge: np.ndarray, hierarchy: str = "straightest", where: str = "skeleton",
+                          window: float | None = None) -> np.ndarray:
+    """``best (n,)``: the child that continues the branch through each node (``-1`` at leaves)."""
+    if hierarchy not in HIERARCHIES:
+        raise TreeError(f"{where}: unknown hierarchy rule {hierarchy!r}; expected one of {', '.join(HIERARCHIES)}")
+    n = len(xyz)
+    reach = np.zeros(n)  # longest path from a node down to a leaf
+    weight = np.zeros(n)  # total length of the subtree below a node
+    for v in order[::-1]:
+        for c in children[v]:
+            reach[v] = max(reach[v], edge[c] + reach[c])
+            weight[v] += edge[c] + weight[c]
+    down = edge + weight  # what hangs from a node's parent through that node
+    best = np.full(n, -1)
+    w = 0.0
+    if hierarchy == "straightest":
+        if window is not None and not window > 0:
+            raise TreeError(f"{where}: the direction window must be positive, got {window}")
+        w = default_window(xyz, parent, edge) if window is None else float(window)
+    for v in order:
+        kids = children[v]
+        if not kids:
+            continue
+        if hierarchy == "longest":
+            best[v] = max(kids, key=lambda c: (edge[c] + reach[c], -c))
+            continue
+        heaviest = max(kids, key=lambda c: (down[c], -c))
+        back = _point_up(xyz, parent, edge, v, w) if w > 0 and len(kids) > 1 else None
+        if back is None:
+            best[v] = heaviest
+            continue
+        incoming = xyz[v] - back
+        candidates = [c for c in kids if down[c] >= SPUR_WINDOWS * w] or [heaviest]
+        turn = {}
+        for c in candidates:
+            out = _point_down(xyz, parent, children, edge, down, c, w) - xyz[v]
+            cos = float(incoming @ out) / max(float(np.linalg.norm(incoming) * np.linalg.norm(out)), 1e-300)
+            turn[c] = float(np.arccos(np.clip(cos, -1.0, 1.0)))
+        straightest = min(turn.values())
+        best[v] = max((c for c in candidates if turn[c] <= straightest + ANGLE_TIE), key=lambda c: (down[c], -c))
+    return best
+
+
 def skeleton_to_branches(
     xyz: np.ndarray,
     parent: np.ndarray,
@@ -116,17 +225,22 @@ def skeleton_to_branches(
     main_path: Sequence[int] | None = None,
     where: str = "skeleton",
     ids: np.ndarray | None = None,
+    hierarchy: str = "straightest",
+    window: float | None = None,
 ) -> tuple[list[np.ndarray], list[int], list[list[int]]]:
-    """Decompose a skeleton into branches by the longest-path rule.
+    """Decompose a skeleton into branches by a hierarchy rule (module docstring).
 
     Args:
         xyz: ``(n, d)`` node coordinates.
         parent: ``(n,)`` parent node index, ``-1`` for the root.
         max_layers: keep at most this many layers (1 = main branch only); ``None`` keeps all.
         min_branch_length: drop side branches (and their subtrees) shorter than this.
-        main_path: node indices of the main branch, starting at the root (default: longest path).
+        main_path: node indices of the main branch, starting at the root (default: by the rule).
         where: a name for error messages.
         ids: node ids for error messages.
+        hierarchy: ``"straightest"`` (default), ``"heaviest"`` or ``"longest"`` (module docstring).
+        window: arc length over which ``"straightest"`` measures directions (default
+            :func:`default_window`).
 
     Returns:
         ``(polylines, parents, node_paths)``: per branch its points ``(n_i, d)``, the index of
@@ -141,11 +255,10 @@ def skeleton_to_branches(
     has_parent = parent >= 0
     edge[has_parent] = np.linalg.norm(xyz[has_parent] - xyz[parent[has_parent]], axis=1)
     reach = np.zeros(len(xyz))  # longest path length from a node down to a leaf
-    best = np.full(len(xyz), -1)
     for v in order[::-1]:
         for c in children[v]:
-            if edge[c] + reach[c] > reach[v] or best[v] < 0:
-                reach[v], best[v] = edge[c] + reach[c], c
+            reach[v] = max(reach[v], edge[c] + reach[c])
+    best = continuation_children(xyz, parent, order, children, edge, hierarchy, where, window)
 
     def follow(start: int) -> list[int]:
         path = [start]
@@ -197,6 +310,8 @@ def skeleton_to_trees(
     where: str = "skeleton",
     ids: np.ndarray | None = None,
     dtype: torch.dtype = torch.float32,
+    hierarchy: str = "straightest",
+    window: float | None = None,
 ) -> Trees:
     """One skeleton as a single-tree :class:`Trees` (see :func:`skeleton_to_branches`).
 
@@ -204,7 +319,7 @@ def skeleton_to_trees(
     (the branch point it starts from belongs to the parent and is not counted).
     """
     polylines, parents, paths = skeleton_to_branches(
-        xyz, parent, max_layers, min_branch_length, main_path, where, ids
+        xyz, parent, max_layers, min_branch_length, main_path, where, ids, hierarchy, window
     )
     labels = None
     if node_labels is not None:

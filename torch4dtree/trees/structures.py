@@ -24,9 +24,11 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ..curves.srvf import curve_length, interpolate_curve, project_on_polyline, resample_polylines
+from ..curves.srvf import curve_length, interpolate_curve, resample_polylines
 
 DEFAULT_T = 64
+# a side branch whose first point is within this many parent grid steps of its parent is moved onto it whole
+BRIDGE_GAP = 0.5
 
 
 class TreeError(ValueError):
@@ -322,7 +324,13 @@ def _build_one_tree(
     for i, p in enumerate(parents):
         if p >= 0:
             children[p].append(i)
-    # depth-first from the main branch; children ordered by where they attach on their parent
+    # depth-first from the main branch; children ordered by where they attach on their parent.
+    # The attachment parameter is the arc-length fraction of the first point's projection on the RAW parent.
+    # A child whose first point lies on its raw parent (skeletons, .mat trees) is translated onto the resampled
+    # parent, whose chords cut the raw curve's corners by a little: its shape is kept exactly. So the tree depends
+    # on the geometry alone, not on how densely the nodes sample it (replacing the first node by its projection,
+    # as before, turned the first segment by an amount that depended on the node spacing). A child that starts
+    # off its parent is joined to it by a straight bridge from its attachment point instead.
     order: list[int] = []
     new_index: dict[int, int] = {}
     resampled: dict[int, Tensor] = {}
@@ -331,20 +339,21 @@ def _build_one_tree(
     while stack:
         i, s_i = stack.pop()
         pts = raw[i]
-        if parents[i] >= 0:  # start exactly on the parent curve, at the projection of the first point
-            par_curve = resampled[parents[i]]
-            start = interpolate_curve(par_curve[None], torch.tensor([[s_i]], dtype=pts.dtype))[0, 0]
-            pts = torch.cat([start[None], pts[1:]])
-            if float(curve_length(pts)) <= 0:
-                raise TreeError(f"{where}: branch {i} is degenerate (zero length after attachment)")
+        if parents[i] >= 0:  # start exactly on the (resampled) parent curve at s
+            par = resampled[parents[i]]
+            start = interpolate_curve(par[None], torch.tensor([[s_i]], dtype=pts.dtype))[0, 0]
+            gap = float((start - pts[0]).norm())
+            if gap <= BRIDGE_GAP * float((par[1] - par[0]).norm()):
+                pts = pts + (start - pts[0])
+            else:
+                pts = torch.cat([start[None], pts])
         new_index[i] = len(order)
         order.append(i)
         s_of[i] = s_i
         resampled[i] = resample_polylines(pts[None], torch.tensor([len(pts)]), T)[0]
         kids = children[i]
         if kids:
-            curve = resampled[i][None].expand(len(kids), -1, -1)
-            ks = project_on_polyline(curve, torch.stack([raw[k][0] for k in kids]))[0].tolist()
+            ks = [_arc_fraction_of_projection(raw[i], raw[k][0]) for k in kids]
             # popped in order of s; equal s keep their input order
             stack.extend(sorted(zip(kids, ks), key=lambda kid_s: (-kid_s[1], -kid_s[0])))
     if len(order) != n:
@@ -353,6 +362,17 @@ def _build_one_tree(
     points = torch.stack([resampled[i] for i in order]).to(dtype)
     par = [-1 if parents[i] < 0 else new_index[parents[i]] for i in order]
     return points, par, [s_of[i] for i in order], [labels[i] for i in order]
+
+
+def _arc_fraction_of_projection(curve: Tensor, x: Tensor) -> float:
+    """Arc-length fraction of the closest point of a raw polyline ``(n, d)`` to ``x (d,)``."""
+    seg = curve[1:] - curve[:-1]
+    denom = (seg * seg).sum(-1)
+    u = (((x - curve[:-1]) * seg).sum(-1) / torch.where(denom > 0, denom, 1)).clamp(0, 1)
+    k = int((curve[:-1] + u[:, None] * seg - x).norm(dim=-1).argmin())
+    lengths = denom.sqrt()
+    total = float(lengths.sum())
+    return min(max(float(lengths[:k].sum() + u[k] * lengths[k]) / total, 0.0), 1.0) if total > 0 else 0.0
 
 
 @dataclass(frozen=True, eq=False)

@@ -1,0 +1,108 @@
+"""Which hierarchy rule keeps branch identities stable: measurements on Pheno4D and synthetic plants.
+
+* :func:`main_branch_agreement`: on every Pheno4D day that has both a raw SWC skeleton and the
+  authors' hand-corrected ``.mat`` tree, how well the automatic main branch of the SWC file agrees
+  with the hand-corrected main branch (the stem): the F1 score of the two polylines' coverage of
+  each other within a tolerance, after aligning the roots.
+"""
+
+from __future__ import annotations
+
+import re
+import statistics
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..curves.srvf import resample_polylines
+from ..io import read_swc_skeleton, read_tree
+from ..trees.skeleton import HIERARCHIES, skeleton_to_branches
+
+
+def _dense(poly: np.ndarray, step: float = 0.5) -> np.ndarray:
+    """Points every ``step`` along a polyline ``(n, 3)``."""
+    p = torch.as_tensor(poly, dtype=torch.float64)
+    length = float((p[1:] - p[:-1]).norm(dim=-1).sum())
+    n = max(int(length / step) + 1, 2)
+    return resample_polylines(p[None], torch.tensor([len(p)]), n)[0].numpy()
+
+
+def _coverage(a: np.ndarray, b: np.ndarray, tol: float) -> float:
+    """Share of the points of ``a`` within ``tol`` of some point of ``b`` (both dense)."""
+    d = np.sqrt(((a[:, None, :] - b[None, :, :]) ** 2).sum(-1)).min(1)
+    return float((d <= tol).mean())
+
+
+def polyline_agreement(a: np.ndarray, b: np.ndarray, tol: float) -> tuple[float, float, float]:
+    """``(precision, recall, F1)`` of polyline ``a`` against ``b``: the share of ``a`` within ``tol`` of ``b``, the
+    share of ``b`` within ``tol`` of ``a``, and their harmonic mean (1 = the same curve)."""
+    da, db = _dense(a), _dense(b)
+    p, r = _coverage(da, db, tol), _coverage(db, da, tol)
+    return p, r, (0.0 if p + r == 0 else 2 * p * r / (p + r))
+
+
+def _mat_folder(swc_plant: str) -> str:
+    m = re.match(r"(?i)(tomato|maize)_?0*(\d+)", swc_plant)
+    if not m:
+        raise ValueError(f"not a Pheno4D plant folder name: {swc_plant}")
+    kind, num = m.group(1).lower(), int(m.group(2))
+    return f"tom_{num}_seq" if kind == "tomato" else f"maize{num:02d}_seq"
+
+
+def day_pairs(root: str | Path) -> list[tuple[str, Path, Path]]:
+    """``(plant, swc file, mat file)`` for every day present in both forms."""
+    root = Path(root)
+    out = []
+    for plant in sorted(p for p in (root / "swc").iterdir() if p.is_dir()):
+        mat_dir = root / "mat" / _mat_folder(plant.name)
+        for swc in sorted(plant.glob("*.swc")):
+            mmdd = re.search(r"_(\d{2})(\d{2})_", swc.name)
+            mat = mat_dir / f"{mmdd.group(1)}_{mmdd.group(2)}.mat" if mmdd else None
+            if mat is not None and mat.is_file():
+                out.append((plant.name, swc, mat))
+    return out
+
+
+def main_branch_agreement(root: str | Path, rules: tuple[str, ...] = HIERARCHIES, tol_fraction: float = 0.02,
+                          max_root_gap: float = 5.0) -> dict:
+    """Per rule and species: how the SWC main branch compares with the hand-corrected ``.mat`` main branch (the stem)
+    of the same day: mean precision (share of the SWC main branch on the stem), recall (share of the stem covered),
+    F1, and the share of days whose main branch covers the stem (recall >= 0.9) without running far beyond it
+    (precision >= 0.6). ``tol = tol_fraction * plant height`` (at least 2 mm). Days whose roots lie more than
+    ``max_root_gap`` mm apart in the two files (differently cropped scans) cannot be compared and are counted apart."""
+    rows: dict[str, dict[str, list[tuple[float, float, float]]]] = {r: {"tomato": [], "maize": []} for r in rules}
+    skipped = {"tomato": 0, "maize": 0}
+    for plant, swc, mat in day_pairs(root):
+        kind = "tomato" if plant.lower().startswith("tom") else "maize"
+        ref = read_tree(mat)
+        if ref is None:
+            continue
+        stem = ref.points[0].double().numpy()
+        sk = read_swc_skeleton(swc, repair=True)
+        shift = stem[0] - sk.xyz[sk.parent == -1][0]
+        if float(np.linalg.norm(shift)) > max_root_gap:
+            skipped[kind] += 1
+            continue
+        height = float(sk.xyz[:, 2].max() - sk.xyz[:, 2].min())
+        tol = max(tol_fraction * height, 2.0)
+        for rule in rules:
+            polys, _, _ = skeleton_to_branches(sk.xyz, sk.parent, where=str(swc), hierarchy=rule)
+            rows[rule][kind].append(polyline_agreement(polys[0] + shift, stem, tol))
+    out: dict = {"skipped_days": skipped}
+    for rule, kinds in rows.items():
+        out[rule] = {}
+        for k, v in kinds.items():
+            if not v:
+                continue
+            p, r, f = (statistics.fmean(x[i] for x in v) for i in range(3))
+            out[rule][k] = {"days": len(v), "precision": p, "recall": r, "f1": f,
+                            "agree_share": sum(x[1] >= 0.9 and x[0] >= 0.6 for x in v) / len(v)}
+    return out
+
+
+if __name__ == "__main__":  # pragma: no cover
+    import json
+    import sys
+
+    print(json.dumps(main_branch_agreement(sys.argv[1] if len(sys.argv) > 1 else "../shared/data/pheno4d"), indent=1))
