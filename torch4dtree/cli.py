@@ -108,7 +108,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("synth", help="generate a dataset folder of synthetic growing plants")
-    p.add_argument("--kind", choices=["tomato", "maize"], default="tomato")
+    p.add_argument("--kind", choices=["tomato", "maize", "bean"], default="tomato")
     p.add_argument("--plants", type=int, default=4)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--frames", type=int, default=10, help="frames per plant")
