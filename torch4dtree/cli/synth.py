@@ -6,7 +6,7 @@ import argparse
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--kind", choices=["tomato", "maize"], default="tomato")
+    p.add_argument("--kind", choices=["tomato", "maize", "bean"], default="tomato")
     p.add_argument("--plants", type=int, default=4)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--frames", type=int, default=10, help="frames per plant")

@@ -2,21 +2,35 @@
 
 from .synthetic import (
     KINDS,
+    SHOOT_OFFSET,
+    SPUR_LABEL,
+    STEM_LABEL,
     SyntheticPlant,
     default_times,
     evaluate_warp,
     label_layer,
+    label_organ,
     label_parts,
+    parent_label,
     plant_seed,
     relative_warp,
     sample_growth_warp,
     synthetic_dataset,
     synthetic_plant,
 )
-from .writing import LABEL_SCHEME, read_ground_truth, run_synth, write_dataset
+from .truth import (
+    IdentityScores,
+    identity_scores,
+    longest_path_organ,
+    main_branch_organs,
+    score_registration,
+)
+from .writing import LABEL_SCHEME, read_ground_truth, run_synth, write_dataset, write_skeleton_swc
 
 __all__ = [
-    "KINDS", "LABEL_SCHEME", "SyntheticPlant", "default_times", "evaluate_warp", "label_layer", "label_parts",
-    "plant_seed", "read_ground_truth", "relative_warp", "run_synth", "sample_growth_warp", "synthetic_dataset",
-    "synthetic_plant", "write_dataset",
+    "KINDS", "LABEL_SCHEME", "SHOOT_OFFSET", "SPUR_LABEL", "STEM_LABEL", "IdentityScores", "SyntheticPlant",
+    "default_times", "evaluate_warp", "identity_scores", "label_layer", "label_organ", "label_parts",
+    "longest_path_organ", "main_branch_organs", "parent_label", "plant_seed", "read_ground_truth", "relative_warp",
+    "run_synth", "sample_growth_warp", "score_registration", "synthetic_dataset", "synthetic_plant",
+    "write_dataset", "write_skeleton_swc",
 ]

@@ -8,11 +8,14 @@ Layout written by :func:`write_dataset`::
                                 and growth warp h on its grid
       tomato_00/
         times.json              {"day_000.swc": 0.0, "day_002.swc": 2.0, ...}
-        day_000.swc             one SWC per frame; branch labels in the type column
-        ...
+        day_000.swc             one SWC per frame: the frame's raw skeleton (nodes, parent links),
+        ...                     each node's organ label in the type column
       tomato_01/ ...
 
-Read it back with ``read_dataset(out, LoadOptions(labels_from_type=True))``.
+The files hold skeletons, not trees: a reader derives the branch hierarchy as it would for any
+SWC file. Read them back with ``read_dataset(out, LoadOptions(labels_from_type=True))``: with
+the reader's default hierarchy rule this gives the trees and labels of
+:attr:`SyntheticPlant.sequence` (for plants generated without ``hierarchy_kwargs``).
 """
 
 from __future__ import annotations
@@ -22,18 +25,42 @@ import shutil
 from collections.abc import Sequence
 from pathlib import Path
 
-from ..io import write_swc, write_text_safely
+import numpy as np
+
+from ..io import write_text_safely
 from ..io.dataset import TIMES_MANIFEST
-from .synthetic import SyntheticPlant, synthetic_dataset
+from .synthetic import SPUR_LABEL, SyntheticPlant, synthetic_dataset
 
 DATASET_MANIFEST = "dataset.json"
 FORMAT = "torch4dtree-synthetic"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2  # 2: frames are raw skeletons with organ labels (1: re-derived trees)
 
 LABEL_SCHEME = (
-    "0 main stem; k (1..99) k-th leaf from the bottom (tomato: 1, 2 cotyledons); k*100+j leaflet j of leaf k "
-    "(j = 2p-1 / 2p: left / right leaflet of pair p from the leaf base); (k*100+j)*100+m lobe m of that leaflet"
+    "organ label per node, base-100 digit pairs from the stem: 0 main stem; k (1..49) k-th leaf from the bottom "
+    "(tomato: 1, 2 cotyledons; bean: 1, 2 primary leaves); 50+k side shoot from the axil of leaf k; S*100+i i-th "
+    "leaf of shoot S; L*100+j leaflet j of leaf L (j = 2p-1 / 2p: left / right leaflet of pair p from the leaf "
+    f"base); (L*100+j)*100+m lobe m of that leaflet; {SPUR_LABEL} skeletonisation spur (not an organ). A branch "
+    "point carries its parent organ's label; the parent organ of a label is label // 100"
 )
+
+
+def write_skeleton_swc(
+    path: str | Path, xyz: np.ndarray, parent: np.ndarray, labels: np.ndarray, overwrite: bool = False,
+    comment: str = "",
+) -> Path:
+    """Write a skeleton graph as SWC: node ``i`` gets id ``i + 1``, ``labels`` (non-negative) go to the type column.
+
+    Coordinates are written with 6 decimals (exact for the synthetic plants' 1e-4 mm grid).
+    Refuses to replace a file unless ``overwrite``.
+    """
+    xyz, parent, labels = np.asarray(xyz, dtype=np.float64), np.asarray(parent), np.asarray(labels)
+    if (labels < 0).any():
+        raise ValueError("SWC type labels must be non-negative")
+    lines = [f"# {c}" for c in comment.splitlines()] if comment else []
+    lines.append("# id type x y z radius parent (written by torch4dtree)")
+    for i, (p, q, lab) in enumerate(zip(xyz.tolist(), parent.tolist(), labels.tolist())):
+        lines.append(f"{i + 1} {int(lab)} {p[0]:.6f} {p[1]:.6f} {p[2]:.6f} 1.0 {q + 1 if q >= 0 else -1}")
+    return write_text_safely(Path(path), "\n".join(lines) + "\n", overwrite)
 
 
 def frame_file_name(time: float, index: int) -> str:
@@ -98,9 +125,12 @@ def write_dataset(plants: Sequence[SyntheticPlant], out_dir: str | Path, overwri
         files = [frame_file_name(t, j) for j, t in enumerate(times)]
         if len(set(files)) != len(files):
             files = [f"frame_{j:02d}.swc" for j in range(len(times))]
-        for j, (tree, fname) in enumerate(zip(plant.sequence.frames.split(), files)):
-            comment = f"synthetic {plant.kind} plant {name} (seed {plant.seed}), frame {j}, time {times[j]:g}"
-            write_swc(folder / fname, tree, overwrite=overwrite, comment=comment)
+        if len(plant.skeletons) != len(times):
+            raise ValueError(f"plant {name} has {len(plant.skeletons)} skeletons for {len(times)} frames")
+        for j, ((xyz, parent, organ), fname) in enumerate(zip(plant.skeletons, files)):
+            comment = (f"synthetic {plant.kind} plant {name} (seed {plant.seed}), frame {j}, time {times[j]:g}\n"
+                       "raw skeleton; type = organ label (see dataset.json)")
+            write_skeleton_swc(folder / fname, xyz, parent, organ, overwrite=overwrite, comment=comment)
         manifest = {f: float(t) for f, t in zip(files, times)}
         write_text_safely(folder / TIMES_MANIFEST, json.dumps(manifest, indent=1) + "\n", overwrite)
         records.append({
@@ -113,6 +143,7 @@ def write_dataset(plants: Sequence[SyntheticPlant], out_dir: str | Path, overwri
             "bio_times": plant.bio_times.double().tolist(),
             "growth_warp": {"grid": plant.growth_grid.double().tolist(), "values": plant.growth_warp.double().tolist()},
             "labels_per_frame": plant.labels_per_frame(),
+            "organs_per_frame": plant.organs_per_frame(),
             "settings": plant.settings,
         })
     kinds = sorted({p.kind for p in plants})
@@ -124,6 +155,9 @@ def write_dataset(plants: Sequence[SyntheticPlant], out_dir: str | Path, overwri
         "seed": dataset_seed.pop() if len(dataset_seed) == 1 else None,
         "units": "mm, z up, root at the origin",
         "label_scheme": LABEL_SCHEME,
+        "frames": "raw skeletons (SWC, organ label per node in the type column); labels_per_frame: the branch labels "
+                  "of the trees derived by the generator's hierarchy (settings.hierarchy_kwargs, default the "
+                  "reader's), organs_per_frame: the organs present",
         "growth_warp": "biological time = h(normalised calendar time); h piecewise linear on its grid",
         "settings": {k: v for k, v in plants[0].settings.items() if k != "index"},
         "plants": records,
@@ -136,7 +170,8 @@ def read_ground_truth(dataset_dir: str | Path) -> dict:
     """The ``dataset.json`` of a synthetic dataset folder (see :func:`write_dataset`), checked.
 
     Per plant (``["plants"]``, in folder order): ``folder``, ``seed``, ``times``,
-    ``normalized_times``, ``bio_times``, ``growth_warp`` (``grid``, ``values``), ``labels_per_frame``.
+    ``normalized_times``, ``bio_times``, ``growth_warp`` (``grid``, ``values``), ``labels_per_frame``
+    and (format version 2) ``organs_per_frame``.
     """
     path = Path(dataset_dir) / DATASET_MANIFEST
     if not path.is_file():

@@ -40,7 +40,7 @@ def read_swc_skeleton(path: str | Path, repair: bool = False) -> Skeleton:
     """Parse and validate an SWC file (one root, known parents, no cycles, finite numbers).
 
     With ``repair``, cycles and parts cut off from the root are mended (see
-    :func:`~torch4dtree.skeleton.repair_skeleton`) with a warning instead of an error: one
+    :func:`~torch4dtree.trees.skeleton.repair_skeleton`) with a warning instead of an error: one
     published Pheno4D file (tomato_1, March 25) needs it.
     """
     path = Path(path)
