@@ -103,3 +103,54 @@ def test_rotation_search_never_ends_worse_than_no_rotation():
     none = float(register_trees(a, b, rotation="none").distance)
     for rotation in ("vertical", "so3"):
         assert float(register_trees(a, b, rotation=rotation).distance) <= none * (1 + 1e-12)
+
+
+# ------------------------------------------------------------------ identities on realistic synthetic plants
+# (the generator's apex leaves outgrow the stem above them, tomato grows basal side shoots, maize's two-ranked
+# leaves look alike, bean has true side shoots: the longest path leaves the stem in every frame; organ labels
+# per skeleton node are the truth, a branch's label is the majority organ of its nodes)
+
+
+def pooled_scores(pairs, **kw):
+    from torch4dtree.data import score_registration
+
+    hit_p = tot_p = hit_r = tot_r = 0.0
+    for mov, ref, rotation in pairs:
+        sc = score_registration(register_trees(mov, ref, rotation=rotation, **kw), mov, ref)
+        hit_p += sc.precision * sc.n_matched
+        tot_p += sc.n_matched
+        hit_r += sc.recall * sc.n_common
+        tot_r += sc.n_common
+    return hit_p / tot_p, hit_r / tot_r
+
+
+@pytest.mark.parametrize("kind", ["tomato", "maize", "bean"])
+def test_identities_survive_growth_between_consecutive_frames(kind):
+    from torch4dtree.data import synthetic_plant
+
+    frames = [synthetic_plant(kind, seed, n_frames=10, T=24, dtype=torch.float64).sequence.frames for seed in (0, 1)]
+    precision, recall = pooled_scores([(f[j], f[j + 1], "none") for f in frames for j in range(len(f) - 1)])
+    assert precision >= 0.95 and recall >= 0.95, (precision, recall)
+
+
+@pytest.mark.parametrize("kind", ["tomato", "maize"])
+def test_identities_across_plants_of_a_kind(kind):
+    """Bean is left out, measured and not met (benchmarks/README.md): its side shoots grow in the axil of either
+    primary leaf at random, and the metric rather matches one plant's shoot (a whole subtree) to the other's in
+    the opposite axil, swapping the two near-symmetric primary leaves, than leaves both shoots unmatched."""
+    from torch4dtree.data import synthetic_dataset
+
+    plants = [p.sequence.frames for p in synthetic_dataset(kind, 3, 0, n_frames=10, T=24, dtype=torch.float64)]
+    pairs = [(plants[a][j], plants[b][j], "vertical") for j in (6, 9) for a, b in ((0, 1), (0, 2), (1, 2))]
+    precision, recall = pooled_scores(pairs)
+    assert precision >= 0.85 and recall >= 0.85, (precision, recall)
+
+
+def test_longest_path_rule_loses_identities_on_the_same_plants():
+    """The same measurement with the paper's longest-path rule: the realistic plants are not built to suit it."""
+    from torch4dtree.data import synthetic_plant
+
+    f = synthetic_plant("tomato", 0, n_frames=10, T=24, dtype=torch.float64,
+                        hierarchy_kwargs={"hierarchy": "longest"}).sequence.frames
+    precision, recall = pooled_scores([(f[j], f[j + 1], "none") for j in range(len(f) - 1)])
+    assert precision < 0.9 and recall < 0.9, (precision, recall)

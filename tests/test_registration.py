@@ -248,18 +248,6 @@ def test_map_points_follows_the_warp():
 # ----------------------------------------------------------------------------- data
 
 
-def test_synthetic_plants_correspondence():
-    import torch4dtree.data as data
-    # 10 frames over the growth period: the stem grows by at most ~37% between frames, as between Pheno4D
-    # scans. (With 6 frames, +55% steps, a leaf that triples in length between two frames is sometimes
-    # cheaper to match to a look-alike: the ground truth then costs ~1% more than the match found.)
-    for kind in ("tomato", "maize"):
-        frames = data.synthetic_plant(kind, 0, n_frames=10, T=T, dtype=torch.float64).sequence.frames
-        accs = [branch_accuracy(register_trees(frames[k + 1], frames[k]), frames[k + 1], frames[k])
-                for k in range(len(frames) - 1)]
-        assert min(accs) >= 0.95, (kind, accs)
-
-
 def test_pheno4d_consecutive_days():
     from conftest import PHENO4D, pheno4d
 
@@ -299,20 +287,6 @@ def test_invariance_with_default_settings_moderate_warps():
     B = transformed_copy(A, torch.Generator().manual_seed(14), "vertical", strength=0.5)
     r = register_trees(B, A, rotation="vertical")
     assert float(r.distance) < 0.12 * _tree_norm(A) and branch_accuracy(r, B, A) == 1.0
-
-
-@pytest.mark.parametrize("kind", ["tomato", "maize"])
-def test_synthetic_plants_correspond_across_plants(kind):
-    """Different plants of a kind (organs at plant-specific heights and azimuths, plant-specific growth
-    clocks, so the same frame holds different numbers of leaves): organ k matches organ k, extras null."""
-    import torch4dtree.data as data
-    plants = data.synthetic_dataset(kind, 3, 0, n_frames=6, T=T, dtype=torch.float64)
-    accs = []
-    for f in (2, 5):
-        for a, b in ((0, 1), (0, 2), (1, 2)):
-            fa, fb = plants[a].sequence.frames[f], plants[b].sequence.frames[f]
-            accs.append(branch_accuracy(register_trees(fa, fb, rotation="vertical"), fa, fb))
-    assert sum(accs) / len(accs) >= 0.95 and min(accs) >= 0.9, accs
 
 
 def test_children_aware_parent_warp():

@@ -109,14 +109,15 @@ if __name__ == "__main__":  # pragma: no cover
 
 
 def identity_accuracy(kinds: tuple[str, ...] = ("tomato", "maize", "bean"), seeds: tuple[int, ...] = (0, 1, 2),
-                      rules: tuple[str, ...] = HIERARCHIES, lp_per_length: tuple[float | None, ...] = (None,),
+                      rules: tuple[str, ...] = HIERARCHIES, lp_per_length: tuple[float | None, ...] = (1.0,),
                       n_frames: int = 10, T: int = 32, cross_plant: bool = True) -> list[dict]:
     """Identity precision / recall of registrations of realistic synthetic plants against their organ truth.
 
-    For every kind, hierarchy rule and position weight: consecutive frames of each plant (``seeds`` plants) and,
-    with ``cross_plant``, the same frame of two different plants (frames 3, 6, 9; vertical rotation). Rows are
-    ``{kind, rule, lp_per_length, consecutive: {precision, recall, pairs}, cross: {...}, seconds}``. Micro-averaged:
-    the counts of all pairs are pooled.
+    For every kind, hierarchy rule and relative position weight (``lp_per_length``: ``lp`` times the
+    reference's main-branch length; ``None``: ``lp = 1`` in the data's units, the old default):
+    consecutive frames of each plant (``seeds`` plants) and, with ``cross_plant``, the same frame of two
+    different plants (frames 3, 6, 9; vertical rotation). Rows are ``{kind, rule, lp_per_length,
+    consecutive: {precision, recall, pairs}, cross: {...}, seconds}``, micro-averaged (counts pooled).
     """
     import time
 
@@ -130,7 +131,8 @@ def identity_accuracy(kinds: tuple[str, ...] = ("tomato", "maize", "bean"), seed
                                       hierarchy_kwargs={"hierarchy": rule}) for seed in seeds]
             for lpl in lp_per_length:
                 t0 = time.perf_counter()
-                kw = {} if lpl is None else {"lp_per_length": lpl}
+                kw = {"lambdas": (1.0, 1.0, 1.0), "lp_relative": False} if lpl is None else \
+                    {"lambdas": (1.0, 1.0, lpl), "lp_relative": True}
 
                 def pooled(pairs: list[tuple], kw: dict = kw) -> dict:
                     hit_p = tot_p = hit_r = tot_r = 0.0

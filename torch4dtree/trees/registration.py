@@ -54,6 +54,7 @@ from .structures import Trees
 
 __all__ = [
     "TreeRegistration",
+    "effective_lambdas",
     "index_order_matches",
     "pairwise_distances",
     "register_to_reference",
@@ -470,11 +471,18 @@ def _check_lambdas(lambdas: Sequence[float]) -> Lambdas:
     return lam  # type: ignore[return-value]
 
 
+def effective_lambdas(lambdas: Sequence[float], reference: Trees) -> Lambdas:
+    """``(lm, ls, lp * L)``: the weights a registration onto ``reference`` uses with ``lp_relative`` (``L`` = the
+    reference's main-branch length)."""
+    lm, ls, lp = _check_lambdas(lambdas)
+    return lm, ls, lp * float(reference.branch_lengths()[0].detach())
+
+
 def register_to_reference(trees: Trees, reference: Trees, lambdas: Sequence[float] = (1.0, 1.0, 1.0),
                           rotation: str = "none", up: Sequence[float] | Tensor | None = None, n_starts: int = 12,
                           max_iters: int = 10, tol: float = 1e-3, neighbourhood: int = 4, band: int | None = None,
                           coarse: int | None = 32, refine: int = 0, prune: bool = True,
-                          lp_per_length: float | None = None) -> list[TreeRegistration]:
+                          lp_relative: bool = True) -> list[TreeRegistration]:
     """Register every tree of ``trees`` (moving) onto the single tree ``reference``, all at once.
 
     Args:
@@ -496,20 +504,21 @@ def register_to_reference(trees: Trees, reference: Trees, lambdas: Sequence[floa
             ``refine > 0`` lowers each energy but made cycle consistency worse at every eps on Pheno4D
             (``.mat`` trees, T = 256: 0.27 -> 0.59 % at eps 0.1 with ``refine=4``), so it is off.
         prune: skip subtree pairs that provably cannot be matched (exact: does not change the result).
-        lp_per_length: if given, the bifurcation weight scales with the tree: ``lp = lp_per_length * L`` with ``L``
-            the reference's main-branch length (it replaces ``lambdas[2]``). The shape terms are lengths (``||q||^2``
-            = length, in the data's units) while ``s`` is a fraction, so a fixed ``lp`` means nothing for plants in
-            mm; the effective lambdas are in the results' ``aligned.lambdas``.
+        lp_relative: the bifurcation weight scales with the tree: the effective ``lp`` is ``lambdas[2]`` times the
+            reference's main-branch length ``L`` (default). The shape terms are lengths (``||q||^2`` = length, in
+            the data's units) while ``s`` is a fraction, so a fixed ``lp`` means nothing for plants in mm (lp = 1
+            let similar maize leaves two nodes apart swap); with ``lp = L`` a child shifted by a fraction ``ds`` of
+            its parent costs like ``ds^2`` of a tree's length. Chosen by measurement on realistic synthetic plants
+            (consecutive-frame identity precision, maize: 83 % with lp = 1 in mm, 97 % with lp = 1 x L or 3 x L).
+            ``False`` uses ``lambdas[2]`` as it is. The effective weights are in the results' ``aligned.lambdas``.
 
     Returns:
         One :class:`TreeRegistration` per moving tree. Every depth of every registration (and every
         rotation start) shares one batched DP call.
     """
     lam = _check_lambdas(lambdas)
-    if lp_per_length is not None:
-        if not (math.isfinite(lp_per_length) and lp_per_length >= 0):
-            raise ValueError(f"lp_per_length must be a finite number >= 0, got {lp_per_length}")
-        lam = (lam[0], lam[1], float(lp_per_length) * float(reference.branch_lengths()[0].detach()))
+    if lp_relative:
+        lam = effective_lambdas(lam, reference)
     check_rotation_mode(rotation, reference.dim)
     if reference.num_trees != 1:
         raise ValueError(f"reference must be a single tree, got {reference.num_trees}")

@@ -121,8 +121,6 @@ def _children(parent: np.ndarray) -> list[list[int]]:
 HIERARCHIES = ("straightest", "heaviest", "longest")
 # straightest rule: children whose subtree is shorter than this many windows are spurs, not candidates
 SPUR_WINDOWS = 0.5
-# ... and candidates whose turning angles differ by less than this (radians) are told apart by weight
-ANGLE_TIE = 0.15
 
 
 def default_window(xyz: np.ndarray, parent: np.ndarray, edge: np.ndarray) -> float:
@@ -160,17 +158,27 @@ def _point_up(xyz: np.ndarray, parent: np.ndarray, edge: np.ndarray, v: int, len
     return xyz[v]
 
 
-def _point_down(xyz: np.ndarray, parent: np.ndarray, children: list[list[int]], edge: np.ndarray,
-                down: np.ndarray, c: int, length: float) -> np.ndarray:
-    """The point ``length`` along the skeleton from the parent of ``c`` through ``c`` (heaviest way down)."""
+def _point_down(xyz: np.ndarray, parent: np.ndarray, children: list[list[int]], edge: np.ndarray, c: int,
+                length: float, axis: np.ndarray) -> np.ndarray:
+    """The point ``length`` along the skeleton from the parent of ``c`` through ``c``, continuing at every branch
+    point on the way into the child that keeps the walk closest to ``axis`` (the way a stem or rachis goes on)."""
     left = length
     while edge[c] < left:
         left -= edge[c]
         if not children[c]:
             return xyz[c]
-        c = max(children[c], key=lambda k: down[k])
+        if len(children[c]) == 1:
+            c = children[c][0]
+            continue
+        ends = {k: _point_down(xyz, parent, children, edge, k, left, axis) for k in children[c]}
+        c = min(ends, key=lambda k: _angle(axis, ends[k] - xyz[c]))
     p = parent[c]
     return xyz[p] + (xyz[c] - xyz[p]) * (left / edge[c])
+
+
+def _angle(u: np.ndarray, v: np.ndarray) -> float:
+    cos = float(u @ v) / max(float(np.linalg.norm(u) * np.linalg.norm(v)), 1e-300)
+    return float(np.arccos(np.clip(cos, -1.0, 1.0)))
 
 
 def continuation_children(xyz: np.ndarray, parent: np.ndarray, order: np.ndarray, children: list[list[int]],
@@ -207,13 +215,9 @@ def continuation_children(xyz: np.ndarray, parent: np.ndarray, order: np.ndarray
             continue
         incoming = xyz[v] - back
         candidates = [c for c in kids if down[c] >= SPUR_WINDOWS * w] or [heaviest]
-        turn = {}
-        for c in candidates:
-            out = _point_down(xyz, parent, children, edge, down, c, w) - xyz[v]
-            cos = float(incoming @ out) / max(float(np.linalg.norm(incoming) * np.linalg.norm(out)), 1e-300)
-            turn[c] = float(np.arccos(np.clip(cos, -1.0, 1.0)))
-        straightest = min(turn.values())
-        best[v] = max((c for c in candidates if turn[c] <= straightest + ANGLE_TIE), key=lambda c: (down[c], -c))
+        turn = {c: _angle(incoming, _point_down(xyz, parent, children, edge, c, w, incoming) - xyz[v])
+                for c in candidates}
+        best[v] = min(candidates, key=lambda c: (turn[c], -down[c], c))
     return best
 
 
