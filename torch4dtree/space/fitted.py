@@ -36,4 +36,5 @@ class FittedModule(nn.Module):
     def _set_fitted(self, **tensors: Tensor) -> None:
         """Replace fitted buffers (new shapes allowed; contiguous, as loading makes them), on the module's device."""
         for name, value in tensors.items():
-            self._buffers[name] = value.detach().to(self._buffers[name].device).clone(memory_format=torch.contiguous_format)
+            device = self._buffers[name].device
+            self._buffers[name] = value.detach().to(device).clone(memory_format=torch.contiguous_format)

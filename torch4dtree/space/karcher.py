@@ -329,7 +329,7 @@ class KarcherMean(FittedModule):
         reg = dict(registration or {})
         unknown = sorted(set(reg) - set(REGISTRATION_KEYS))
         if unknown:
-            raise ValueError(f"unknown registration settings {unknown}; register_to_reference takes {REGISTRATION_KEYS}")
+            raise ValueError(f"unknown registration settings {unknown}; allowed: {REGISTRATION_KEYS}")
         if isinstance(reg.get("up"), Tensor):
             reg["up"] = [float(x) for x in reg["up"].tolist()]  # plain values, so the extra state loads safely
         self.rotation, self.max_iters, self.tol, self.max_slots = rotation, int(max_iters), float(tol), int(max_slots)

@@ -103,7 +103,7 @@ class TreePCA(FittedModule):
 
     # ------------------------------------------------------------------------ fit
     def fit(self, aligned: AlignedTrees) -> TreePCA:
-        """Fit on ``n >= 2`` trees in one layout (``aligned.features()``, SVD via ``torch.linalg``). Returns ``self``."""
+        """Fit on ``n >= 2`` trees in one layout (SVD of the centred ``aligned.features()``). Returns ``self``."""
         if not isinstance(aligned, AlignedTrees):
             raise TypeError(f"expected AlignedTrees, got {type(aligned).__name__}")
         n, S, M, d = aligned.q.shape
