@@ -12,6 +12,7 @@ from test_registration import random_tree, transformed_copy
 
 from torch4dtree.curves import srvf, srvf_sq_norm
 from torch4dtree.space import KarcherMean, NotFittedError, SlotLimitError, TreePCA
+from torch4dtree.space.karcher import _Mean, _Registered
 from torch4dtree.trees import AlignedTrees, Trees, register_trees
 
 T = 16
@@ -104,6 +105,60 @@ def test_energy_never_increases(fitted):
     assert energies[-1] < energies[0]
     assert [h["num_slots"] for h in km.history][-1] == km.num_slots
     assert all(h["union_slots"] >= h["num_slots"] for h in km.history[:-1])
+
+
+def test_energy_never_increases_with_a_coarse_registration(population):
+    # DP slopes of 1 only: fresh registrations onto a moved mean can miss what the previous round found, and
+    # then each tree keeps its previous correspondence (without that fallback the energy rises here)
+    km = fit(population, prune_length=0.02, max_iters=6, tol=0.0, registration={"neighbourhood": 1})
+    energies = [h["energy"] for h in km.history]
+    assert all(b <= a * (1 + 1e-12) for a, b in zip(energies, energies[1:])), energies
+    assert sum(h["kept_previous"] for h in km.history) > 0
+
+
+def test_pruning_an_old_slot_never_raises_the_energy():
+    # a stationary mean whose side slot's average length (4.2 / 3) is below 5% of the main (1.5): pruning it
+    # would add 3 |mean branch|^2 = 1.4 to the energy, so the slot stays; the same slot opened anew is pruned
+    M, d = 15, 3
+    q_main = torch.zeros(M, d, dtype=torch.float64)
+    q_main[:, 2] = math.sqrt(30.0)
+    q_side = torch.zeros(M, d, dtype=torch.float64)
+    q_side[:, 0] = math.sqrt(4.2)
+    km = KarcherMean(prune_length=0.05, progress=False)
+    parent = torch.tensor([-1, 0])
+    mean = _Mean(torch.stack([q_main, q_side / 3]), torch.tensor([0.0, 0.5], dtype=torch.float64),
+                 torch.zeros(3, dtype=torch.float64), parent)
+
+    def form(q_b, present, sq):
+        return _Registered(torch.stack([q_main, q_b]), torch.tensor([0.0, 0.5], dtype=torch.float64),
+                           torch.tensor([True, present]), torch.tensor([0, 1 if present else -1]), parent,
+                           torch.zeros(3, dtype=torch.float64), sq)
+
+    forms = [form(q_side, True, 4 / 9 * 4.2), form(0 * q_side, False, 4.2 / 9), form(0 * q_side, False, 4.2 / 9)]
+    energy = sum(f.sq_dist for f in forms)
+    new, carry, change, _ = km._update(mean, forms, energy)
+    assert new.num_slots == 2 and change == pytest.approx(0.0, abs=1e-12)
+    assert float(carry.sq_dist.sum()) == pytest.approx(energy, rel=1e-12)
+    # the same branch in a new slot (the mean has the main branch only): pruned, and the energy does not rise
+    mean1 = _Mean(q_main[None], torch.zeros(1, dtype=torch.float64), torch.zeros(3, dtype=torch.float64),
+                  torch.tensor([-1]))
+    main_only = _Registered(q_main[None], torch.zeros(1, dtype=torch.float64), torch.tensor([True]),
+                            torch.tensor([0]), torch.tensor([-1]), torch.zeros(3, dtype=torch.float64), 0.0)
+    new1, carry1, _, union = km._update(mean1, [form(q_side, True, 4.2), main_only, main_only], 4.2)
+    assert union == 2 and new1.num_slots == 1 and float(carry1.sq_dist.sum()) == pytest.approx(4.2, rel=1e-12)
+
+
+def test_a_branch_shared_by_a_third_of_the_trees_gets_one_slot():
+    # each tree with the extra branch opens its own slot first (average length 15/6 = 2.5 > 5% of 30), the
+    # next round merges them; pruning by the length of the mean branch (15/36) would have dropped them
+    base, extra = small_tree(4), small_tree(4, extra=(0.5, 15.0))
+    trees = Trees.cat([base] * 4 + [extra] * 2)
+    km = fit(trees, prune_length=0.05)
+    res = km.fit_transform(trees)
+    assert km.num_slots == base.points.shape[0] + 1
+    j = int((~res.aligned.present.all(0)).nonzero()[0, 0])
+    assert res.aligned.present[:, j].tolist() == [False] * 4 + [True] * 2
+    assert torch.allclose(km.mean_q[j], res.aligned.q[4:, j].sum(0) / 6, atol=1e-9)
 
 
 def test_distances_split_into_layout_and_dropped_parts(fitted, population):
