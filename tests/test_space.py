@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import dataclasses
 import math
 
 import numpy as np
@@ -291,7 +292,8 @@ def known_spectrum(variances, n: int = 8, seed: int = 0) -> AlignedTrees:
 
 def test_pca_full_rank_reconstructs_exactly(fitted):
     _, res = fitted
-    x = res.aligned
+    shift = torch.arange(res.aligned.num_trees * 3, dtype=torch.float64).reshape(-1, 3)
+    x = dataclasses.replace(res.aligned, root=res.aligned.root + shift)  # roots are not features: kept apart
     n = x.num_trees
     pca = TreePCA(n_components=n).fit(x)
     back = pca.inverse_transform(pca.transform(x))
@@ -300,7 +302,8 @@ def test_pca_full_rank_reconstructs_exactly(fitted):
     # decode(encode(x)) is the training tree (up to the discarded variance, none here)
     dec, ref = pca.decode(pca.transform(x[[0]]), min_length=1e-6), x[[0]].to_trees(1e-6)
     assert dec.num_branches.tolist() == ref.num_branches.tolist()
-    assert torch.allclose(dec.points, ref.points + (pca.mean_root - x.root[0]), atol=1e-6)
+    assert torch.allclose(pca.mean_root, x.root.mean(0))
+    assert torch.allclose(dec.points, ref.points + (pca.mean_root - x.root[0]), atol=1e-6)  # starts at the mean root
 
 
 def test_pca_variance_threshold_picks_k():
