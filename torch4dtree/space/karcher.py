@@ -45,6 +45,8 @@ DEFAULT_PRUNE = 0.01
 # slots shorter than this fraction of the main branch are null whatever prune_length says
 NULL_FRACTION = 1e-9
 ROTATIONS = ("none", "vertical", "so3")
+# the medoid rule ranks its candidates on branches resampled to this many points
+MEDOID_T = 24
 # register_to_reference settings a KarcherMean passes through (lambdas and rotation are its own)
 REGISTRATION_KEYS = tuple(k for k in inspect.signature(register_to_reference).parameters
                           if k not in ("trees", "reference", "lambdas", "rotation"))
@@ -290,7 +292,8 @@ class KarcherMean(FittedModule):
             are pruned with their descendants after each average (and from the initial tree).
         init: ``"medoid"``: among ``medoid_subsample`` trees (evenly spaced ranks when sorted by total length,
             then branch count), the one with the smallest sum of squared registered distances of the subsample
-            onto it; the result does not depend on the input order (ties aside). Or an ``int``: that tree.
+            onto it (branches resampled to ``MEDOID_T`` points for this ranking); the result does not depend on
+            the input order (ties aside). Or an ``int``: that tree.
         medoid_subsample: subsample size of the medoid rule (it costs ``m^2`` pair registrations).
         progress: a tqdm bar over the iterations.
         registration: keyword arguments of :func:`~torch4dtree.trees.register_to_reference` (``n_starts``,
@@ -451,20 +454,24 @@ class KarcherMean(FittedModule):
         ranked = sorted(range(n), key=lambda i: (total[i], count[i], i))
         m = min(self.medoid_subsample, n)
         sub = ranked if m == n else [ranked[round(j * (n - 1) / max(m - 1, 1))] for j in range(m)]
-        subtrees = trees[sub]
-        best: tuple[float, _Mean, list[_Registered]] | None = None
+        # candidates are ranked on coarser curves (DP cost ~ T^2): the same medoid at T = 24 as at 64 on synthetic
+        # tomato and maize and Pheno4D tomato, 2.3-2.9x faster
+        coarse = trees.T > MEDOID_T
+        ranking = trees.resample(MEDOID_T) if coarse else trees
+        subtrees = ranking[sub]
+        best: tuple[float, int, list[_Registered]] | None = None
         for c in sub:
-            cand = self._capped(_tree_mean(trees[c], self.prune_length))
-            forms = self._register(subtrees, cand)
+            forms = self._register(subtrees, self._capped(_tree_mean(ranking[c], self.prune_length)))
             energy = sum(f.sq_dist for f in forms)
             if best is None or energy < best[0]:
-                best = (energy, cand, forms)
-                self.init_index_ = c
+                best = (energy, c, forms)
         assert best is not None
-        if m < n:
-            return best[1], None
-        pos = {t: k for k, t in enumerate(sub)}
-        return best[1], [best[2][pos[i]] for i in range(n)]
+        self.init_index_ = best[1]
+        mean = self._capped(_tree_mean(trees[best[1]], self.prune_length))
+        if m < n or coarse:
+            return mean, None
+        pos = {t: k for k, t in enumerate(sub)}  # every tree was registered onto this very mean: reuse
+        return mean, [best[2][pos[i]] for i in range(n)]
 
     def _capped(self, mean: _Mean) -> _Mean:
         if mean.num_slots > self.max_slots:
