@@ -545,7 +545,10 @@ class KarcherMean(FittedModule):
             step = {"energy": energy, "num_slots": mean.num_slots, "union_slots": 0, "rel_change": change,
                     "kept_previous": kept}
             self.history.append(step)
-            done = energy == 0.0 or (prev is not None and (change < self.tol or prev - energy <= self.tol * prev))
+            size = len(forms) * float((slot_weights(_slot_depth(mean.parent), self.lambdas)[0]
+                                       * srvf_sq_norm(mean.q)).sum())
+            exact = energy <= 1e-20 * size  # every tree is the mean (rounding aside)
+            done = exact or (prev is not None and (change < self.tol or prev - energy <= self.tol * prev))
             if done or it == self.max_iters - 1:
                 self.converged_ = done
                 step["seconds"] = time.perf_counter() - start
@@ -558,11 +561,12 @@ class KarcherMean(FittedModule):
             bar.set_postfix(energy=f"{energy:.4g}", slots=mean.num_slots)
             mean, forms, prev = new, None, energy
         bar.close()
+        assert forms is not None
+        mean.root = torch.stack([f.root for f in forms]).mean(0)  # not in the metric: also when stopping at round 0
         self.n_iter_ = len(self.history)
         depth = _slot_depth(mean.parent)
         self._set_fitted(mean_q=mean.q.to(dtype), mean_s=mean.s.to(dtype), mean_root=mean.root.to(dtype),
                          slot_parent=mean.parent, slot_depth=depth)
-        assert forms is not None
         return forms, mean
 
 
