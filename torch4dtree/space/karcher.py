@@ -10,8 +10,11 @@ iteration:
    the slot its parent went to), null in every other tree;
 3. average the registered SRVFTs: ``q`` over all trees (a null branch is ``q = 0``), ``s`` over the trees
    that have the branch (a null partner's ``s`` costs nothing, SPEC §3), roots over all trees;
-4. **prune** the slots whose mean branch is shorter than ``prune_length`` times the mean's main branch,
-   with their descendants, and put the rest in canonical order.
+4. **prune** the slots whose average branch length over the trees (a null branch counts 0) is below
+   ``prune_length`` times the average main-branch length, with their descendants, and put the rest in
+   canonical order. (Not the length of the mean branch: for a branch that ``k`` of ``n`` trees share it is
+   ``(k/n)^2 L``, so as ``n`` grows every new slot, which holds one tree's branch, would be pruned before the
+   others could join it.)
 
 **The energy** ``E = sum_i d^2(tree_i, mean)`` **never increases** between iterations: each tree also keeps
 its previous correspondence (the union row, restricted to the kept slots, its other branches unmatched) as
@@ -288,8 +291,11 @@ class KarcherMean(FittedModule):
             union layout) or the energy decreased by less than ``tol`` relatively.
         max_slots: cap on the mean's layout; exceeding it raises :class:`SlotLimitError` (raise the cap or
             ``prune_length``) instead of silently dropping branches.
-        prune_length: slots whose mean branch is shorter than this **fraction of the mean's main-branch length**
-            are pruned with their descendants after each average (and from the initial tree).
+        prune_length: slots whose average branch length over the trees is below this **fraction of the average
+            main-branch length** are pruned with their descendants after each average (and the initial tree's
+            shorter branches). The default 0.01, measured against no pruning: synthetic tomato (10 frames)
+            41 slots instead of 58 for a 0.5% higher energy; Pheno4D tom_1 (9 days) 62 instead of 76, +0.15%
+            (0.02: 29 and 50 slots, +2.1% and +0.6%; 0.05: 10 and 32 slots, +14% and +2.4%).
         init: ``"medoid"``: among ``medoid_subsample`` trees (evenly spaced ranks when sorted by total length,
             then branch count), the one with the smallest sum of squared registered distances of the subsample
             onto it (branches resampled to ``MEDOID_T`` points for this ranking); the result does not depend on
@@ -418,8 +424,7 @@ class KarcherMean(FittedModule):
         """
         _check_trees(trees)
         mean = self._mean()
-        regs = register_to_reference(trees.to("cpu"), _decode(mean), self.lambdas, self.rotation, **self.registration)
-        return self._result([_registered(r) for r in regs], mean)
+        return self._result(self._register(trees.to("cpu"), mean), mean)
 
     def _result(self, forms: Sequence[_Registered], mean: _Mean) -> MeanRegistration:
         S = mean.num_slots
