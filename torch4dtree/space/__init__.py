@@ -1,0 +1,7 @@
+"""The space of 3D trees (SPEC §4): the Karcher mean in a growing slot layout and tree PCA on its features."""
+
+from .fitted import NotFittedError
+from .karcher import KarcherMean, MeanRegistration, SlotLimitError
+from .pca import TreePCA
+
+__all__ = ["KarcherMean", "MeanRegistration", "NotFittedError", "SlotLimitError", "TreePCA"]

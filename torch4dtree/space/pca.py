@@ -1,0 +1,186 @@
+"""Tree PCA (SPEC §4, paper §4.1): principal components of registered trees' weighted SRVFT features.
+
+In a common slot layout :meth:`AlignedTrees.features` is a flat vector whose Euclidean norm of differences
+is the tree metric, so PCA is an SVD of the centred features. Coefficients are projections on orthonormal
+components: Euclidean distances between coefficient vectors are tree-metric distances within the principal
+subspace (exactly the feature distances with all components kept). Decoding maps coefficients back to
+features, then to trees in the fitted layout.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import torch
+from torch import Tensor
+
+from ..curves.srvf import srvf_sq_norm
+from ..trees.aligned import AlignedTrees, Lambdas
+from ..trees.registration import _check_lambdas
+from ..trees.structures import Trees
+from .fitted import FittedModule, NotFittedError
+
+__all__ = ["TreePCA"]
+
+# decode drops branches shorter than this fraction of the mean's main branch (see TreePCA.decode)
+DECODE_MIN_FRACTION = 0.01
+
+
+class TreePCA(FittedModule):
+    """PCA in the tree space: ``k`` fixed (``n_components``) or the smallest ``k`` explaining ``variance``.
+
+    Fitted buffers (``F = S*M*d + S - 1`` features; ``.to()`` moves and casts them):
+    ``mean (F,)``, ``components (k, F)`` orthonormal rows (sign: largest entry positive),
+    ``explained_variance (k,)`` (eigenvalues of the covariance with ``1/(n-1)``), ``explained_variance_ratio (k,)``,
+    ``mean_root (d,)`` (the roots are not features: decoding starts there), and the layout
+    ``slot_parent (S,)``, ``slot_depth (S,)``; ``lambdas``, ``M``, ``d`` travel in the extra state, so a loaded
+    module decodes on its own.
+    """
+
+    _fitted_buffers = ("mean", "components", "explained_variance", "explained_variance_ratio", "mean_root",
+                       "slot_parent", "slot_depth")
+
+    def __init__(self, n_components: int | None = None, variance: float = 0.99) -> None:
+        super().__init__()
+        if n_components is not None and (isinstance(n_components, bool) or int(n_components) < 1):
+            raise ValueError(f"n_components must be None or a positive int, got {n_components!r}")
+        if not 0.0 < variance <= 1.0:
+            raise ValueError(f"variance must be in (0, 1], got {variance}")
+        self.n_components = None if n_components is None else int(n_components)
+        self.variance = float(variance)
+        self.lambdas: Lambdas = (1.0, 1.0, 1.0)
+        self.M = 0
+        self.d = 0
+        self.n_samples_ = 0
+        self.total_variance_ = 0.0
+        for name in ("mean", "explained_variance", "explained_variance_ratio", "mean_root"):
+            self.register_buffer(name, torch.zeros(0))
+        self.register_buffer("components", torch.zeros(0, 0))
+        self.register_buffer("slot_parent", torch.zeros(0, dtype=torch.long))
+        self.register_buffer("slot_depth", torch.zeros(0, dtype=torch.long))
+
+    # ------------------------------------------------------------------------ state
+    def get_extra_state(self) -> dict[str, Any]:
+        return {"version": 1, "n_components": self.n_components, "variance": self.variance,
+                "lambdas": list(self.lambdas), "M": self.M, "d": self.d, "n_samples": self.n_samples_,
+                "total_variance": self.total_variance_}
+
+    def set_extra_state(self, state: dict[str, Any]) -> None:
+        if not isinstance(state, dict) or state.get("version") != 1:
+            raise ValueError("not a TreePCA state (missing or unknown version)")
+        self.n_components, self.variance = state["n_components"], state["variance"]
+        self.lambdas = _check_lambdas(state["lambdas"])
+        self.M, self.d, self.n_samples_ = state["M"], state["d"], state["n_samples"]
+        self.total_variance_ = state["total_variance"]
+
+    @property
+    def is_fitted(self) -> bool:
+        return self.components.shape[0] > 0
+
+    @property
+    def n_components_(self) -> int:
+        """``k``, the number of fitted components."""
+        return self.components.shape[0]
+
+    @property
+    def num_slots(self) -> int:
+        return self.slot_parent.shape[0]
+
+    def _check_fitted(self) -> None:
+        if not self.is_fitted:
+            raise NotFittedError("TreePCA is not fitted: call fit() or load_state_dict() first")
+
+    def _check_layout(self, aligned: AlignedTrees) -> None:
+        if not isinstance(aligned, AlignedTrees):
+            raise TypeError(f"expected AlignedTrees, got {type(aligned).__name__}")
+        _, S, M, d = aligned.q.shape
+        if (S, M, d) != (self.num_slots, self.M, self.d) or aligned.lambdas != self.lambdas or not torch.equal(
+                aligned.slot_parent.to(self.slot_parent.device), self.slot_parent):
+            raise ValueError(f"trees in another layout: (S, M, d) = {(S, M, d)}, lambdas {aligned.lambdas}; the PCA "
+                             f"was fitted on {(self.num_slots, self.M, self.d)}, lambdas {self.lambdas} (write the "
+                             f"trees in the fitted layout, e.g. with KarcherMean.transform)")
+
+    # ------------------------------------------------------------------------ fit
+    def fit(self, aligned: AlignedTrees) -> TreePCA:
+        """Fit on ``n >= 2`` trees in one layout (SVD of the centred ``aligned.features()``). Returns ``self``."""
+        if not isinstance(aligned, AlignedTrees):
+            raise TypeError(f"expected AlignedTrees, got {type(aligned).__name__}")
+        n, S, M, d = aligned.q.shape
+        if n < 2:
+            raise ValueError(f"PCA needs at least 2 trees, got {n}")
+        X = aligned.features().detach()
+        mean = X.mean(0)
+        Xc = X - mean
+        _, sing, Vh = torch.linalg.svd(Xc, full_matrices=False)
+        var = sing.square() / (n - 1)
+        total = float(Xc.square().sum()) / (n - 1)
+        if not total > 0:
+            raise ValueError("the trees do not vary (all features equal): no principal components")
+        ratio = var / total
+        if self.n_components is not None:
+            k = self.n_components
+            if k > len(var):
+                raise ValueError(f"n_components={k} > min(n_trees, n_features) = {len(var)}")
+        else:  # smallest k reaching the share (a rounding margin so that an exact share counts as reached)
+            k = min(int((ratio.cumsum(0) < self.variance - 1e-12).sum()) + 1, len(var))
+        comps = Vh[:k]
+        big = comps.abs().argmax(1, keepdim=True)
+        comps = comps * torch.sign(comps.gather(1, big))  # deterministic signs
+        self.lambdas, self.M, self.d = aligned.lambdas, M, d
+        self.n_samples_, self.total_variance_ = n, total
+        self._set_fitted(mean=mean, components=comps, explained_variance=var[:k], explained_variance_ratio=ratio[:k],
+                         mean_root=aligned.root.detach().mean(0), slot_parent=aligned.slot_parent,
+                         slot_depth=aligned.slot_depth)
+        return self
+
+    def fit_transform(self, aligned: AlignedTrees) -> Tensor:
+        """``fit(aligned)`` then ``transform(aligned)``: ``(n, k)``."""
+        return self.fit(aligned).transform(aligned)
+
+    # ------------------------------------------------------------------------ maps
+    def transform(self, aligned: AlignedTrees) -> Tensor:
+        """Coefficients ``(n, k)``: projections of the centred features on the orthonormal components."""
+        self._check_fitted()
+        self._check_layout(aligned)
+        X = aligned.features().to(self.mean)
+        return (X - self.mean) @ self.components.T
+
+    def inverse_features(self, coeffs: Tensor) -> Tensor:
+        """Features ``(..., F) = mean + coeffs @ components`` from ``coeffs (..., k)`` (differentiable)."""
+        self._check_fitted()
+        if coeffs.shape[-1] != self.n_components_:
+            raise ValueError(f"coefficients must end with k={self.n_components_}, got shape {tuple(coeffs.shape)}")
+        return self.mean + coeffs.to(self.mean.dtype) @ self.components
+
+    def inverse_transform(self, coeffs: Tensor, root: Tensor | None = None) -> AlignedTrees:
+        """Trees in the fitted layout from ``coeffs (..., k)``: leading dims are flattened to ``n = prod(...)`` trees.
+
+        Differentiable in ``coeffs`` (``q``, ``s`` and ``features()`` of the result). ``root``: ``(n, d)`` or
+        ``(d,)``, default the training trees' mean root. ``present`` marks slots with a nonzero SRVF.
+        """
+        f = self.inverse_features(coeffs).reshape(-1, self.mean.shape[0])
+        n = f.shape[0]
+        r = self.mean_root if root is None else root.to(self.mean)
+        return AlignedTrees.from_features(f, self._template(), r.expand(n, self.d))
+
+    def decode(self, coeffs: Tensor, min_length: float | None = None) -> Trees:
+        """Decoded trees from ``coeffs (..., k)`` (flattened like :meth:`inverse_transform`).
+
+        A slot is present where its decoded branch is longer than ``min_length`` (default
+        ``DECODE_MIN_FRACTION`` of the mean's main-branch length) and its parent slot is present; children
+        start on their parent's curve (:meth:`AlignedTrees.to_trees`).
+        """
+        aligned = self.inverse_transform(coeffs)
+        if min_length is None:
+            main = self.mean[: self.M * self.d].reshape(self.M, self.d) / math.sqrt(self.lambdas[0] / self.M)
+            min_length = DECODE_MIN_FRACTION * float(srvf_sq_norm(main))
+        return aligned.to_trees(eps=min_length)
+
+    def _template(self) -> AlignedTrees:
+        """An empty tree in the fitted layout (what :meth:`AlignedTrees.from_features` reads the layout from)."""
+        S, dev = self.num_slots, self.mean.device
+        return AlignedTrees(self.mean.new_zeros(1, S, self.M, self.d), self.mean.new_zeros(1, S),
+                            torch.zeros(1, S, dtype=torch.bool, device=dev), self.mean.new_zeros(1, self.d),
+                            self.slot_parent, self.slot_depth, torch.full((1, S), -1, dtype=torch.long, device=dev),
+                            self.lambdas)
