@@ -29,8 +29,8 @@ __all__ = ["TemporalRegistration", "geodesic4d", "register_trajectories", "time_
 # temporal/bench.py): the full lattice with slopes up to 3 plus 4 Gauss-Newton refinement steps recovers
 # warps to a mean absolute error of 7e-4 (1.4e-2 without refinement; slopes up to 8 without refinement:
 # 4.7e-3 at 4x the time); wider neighbourhoods do not improve the refined warp.
-NEIGHBOURHOOD = 3
-REFINE = 4
+NEIGHBOURHOOD = 4
+REFINE = 8
 
 
 class TemporalRegistration(NamedTuple):

@@ -24,8 +24,8 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
-from ..curves.srvf import interpolate_curve, srvf, uniform_grid, warp_srvf
-from ..curves.warps import compose_warps, invert_warp
+from ..curves.srvf import srvf, uniform_grid, warp_srvf
+from ..curves.warps import compose_warps
 from ..trees.aligned import AlignedTrees
 from ..trees.registration import TreeRegistration, register_trees
 from ..trees.structures import Trees, TreeSequence
@@ -192,8 +192,7 @@ def _chain(frames: Trees, times: Tensor, regs: list[TreeRegistration], lambdas: 
     q_packed = _rotate(warp_srvf(srvf(pts), G), R[tree])
     # a child's parameter moves with its parent's composed warp: s -> G_parent^{-1}(s)
     gp = frames.global_parent
-    inv = invert_warp(G[gp.clamp(min=0)])
-    s_packed = interpolate_curve(inv.unsqueeze(-1), frames.s.to(dt).unsqueeze(-1))[:, 0, 0]
+    s_packed = _inverse_at(G[gp.clamp(min=0)], frames.s.to(dt))
     s_packed = torch.where(gp >= 0, s_packed, torch.zeros_like(s_packed))
     M = T - 1
     q = torch.zeros(n, S, M, d, dtype=dt, device=dev).index_put((tree, slot), q_packed)
@@ -207,6 +206,22 @@ def _chain(frames: Trees, times: Tensor, regs: list[TreeRegistration], lambdas: 
     distances = torch.stack([r.distance.to(device=dev, dtype=dt) for r in regs]) if regs else \
         torch.zeros(0, dtype=dt, device=dev)
     return AlignedSequence(aligned, times.to(device=dev, dtype=dt), identity, distances, warps, R, name)
+
+
+def _inverse_at(gamma: Tensor, s: Tensor) -> Tensor:
+    """``gamma^{-1}(s)`` of piecewise-linear warps: ``gamma (N, T)`` nondecreasing, ``s (N,)`` -> ``(N,)``.
+
+    Exact for the piecewise-linear warp (sampling ``invert_warp`` on the grid first would add an
+    interpolation error); on a flat piece, the first parameter reaching ``s``.
+    """
+    T = gamma.shape[1]
+    g = gamma.contiguous()
+    hi = torch.searchsorted(g, s.unsqueeze(1).contiguous(), right=True)[:, 0].clamp(1, T - 1)
+    lo = hi - 1
+    g_lo, g_hi = g.gather(1, lo[:, None])[:, 0], g.gather(1, hi[:, None])[:, 0]
+    width = g_hi - g_lo
+    frac = torch.where(width > 0, (s - g_lo) / torch.where(width > 0, width, 1), 0).clamp(0, 1)
+    return ((lo.to(s.dtype) + frac) / (T - 1)).clamp(0, 1)
 
 
 def _fill_null_s(s: Tensor, present: Tensor) -> Tensor:
