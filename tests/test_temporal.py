@@ -358,3 +358,13 @@ def test_single_frame_sequence():
     assert len(al) == 1 and al.distances.shape == (0,)
     assert torch.equal(al.identity[0], torch.arange(int(seq.frames.num_branches[0])))
     assert int(al.representative().num_branches[0]) == al.num_slots
+
+
+def test_register_sequence_rejects_bad_input():
+    seq = synthetic_plant("maize", seed=2, n_frames=3, T=T_SMALL).sequence
+    with pytest.raises(TypeError, match="TreeSequence"):
+        register_sequence(seq.frames)
+    with pytest.raises(ValueError, match="lambdas"):
+        register_sequence(seq, lambdas=(1.0, -1.0, 1.0))
+    with pytest.raises(ValueError, match="labels"):
+        identity_accuracy(register_sequence(seq[[0]]), seq.frames.label)

@@ -17,6 +17,7 @@ maps it into frame ``j + 1``'s orientation, so ``R_j = R_{j+1} O_j`` (about each
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -121,7 +122,10 @@ def register_sequence(seq: TreeSequence, lambdas: Sequence[float] = (1.0, 1.0, 1
 
     Args:
         seq: the 4D tree (frames in time order).
-        lambdas: ``(lm, ls, lp)`` metric weights (SPEC §3 order), also those of the returned layout.
+        lambdas: ``(lm, ls, lp)`` metric weights (SPEC §3 order), also those of the returned layout. For plants
+            in mm, ``lp`` in ``[30, 100]`` kept every synthetic organ's identity (6 tomato and 6 maize plants,
+            8 frames); with ``lp = 1`` the position term is negligible and similar tomato leaves at neighbouring
+            nodes swap (worst consecutive pair 92.9 % correct); ``lp >= 300`` starts to mismatch maize leaves.
         rotation: ``"none"`` (frames share a frame of reference, as scans do), ``"vertical"`` or ``"so3"``.
         progress: show a progress bar over the ``n - 1`` registrations.
         registration_kwargs: passed to :func:`torch4dtree.trees.register_trees` (DP settings, ``up``, ...).
@@ -130,6 +134,11 @@ def register_sequence(seq: TreeSequence, lambdas: Sequence[float] = (1.0, 1.0, 1
         :class:`AlignedSequence` (module doc: slot order, warp and rotation composition). The aligned SRVFs
         are float64 and differentiable in the frames' points given the discrete choices.
     """
+    if not isinstance(seq, TreeSequence):
+        raise TypeError(f"register_sequence needs a TreeSequence, got {type(seq).__name__}")
+    lam = tuple(float(x) for x in lambdas)
+    if len(lam) != 3 or not all(math.isfinite(x) and x >= 0 for x in lam) or lam[0] <= 0 or lam[1] <= 0:
+        raise ValueError(f"lambdas must be (lm > 0, ls > 0, lp >= 0), got {tuple(lambdas)}")
     frames = seq.frames
     n = len(seq)
     if n >= 2:
@@ -137,13 +146,13 @@ def register_sequence(seq: TreeSequence, lambdas: Sequence[float] = (1.0, 1.0, 1
 
         single = frames.split()
         regs: list[TreeRegistration] = [
-            register_trees(single[j], single[j + 1], lambdas, rotation, **registration_kwargs)
+            register_trees(single[j], single[j + 1], lam, rotation, **registration_kwargs)
             for j in tqdm(range(n - 1), disable=not progress, desc=f"registering {seq.name or 'sequence'}",
                           unit="pair")
         ]
     else:
         regs = []
-    return _chain(frames, seq.times, regs, tuple(float(x) for x in lambdas), seq.name)  # type: ignore[arg-type]
+    return _chain(frames, seq.times, regs, lam, seq.name)  # type: ignore[arg-type]
 
 
 def _chain(frames: Trees, times: Tensor, regs: list[TreeRegistration], lambdas: tuple[float, float, float],
