@@ -1,0 +1,378 @@
+"""4D trees: within-sequence registration, trajectories, temporal registration, 4D geodesics."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from torch4dtree.curves import interpolate_curve, invert_warp, random_warp, srvf, srvf_sq_norm, warp_curve
+from torch4dtree.curves.rotation import random_rotation
+from torch4dtree.data import synthetic_plant
+from torch4dtree.temporal import (
+    AlignedSequence,
+    geodesic4d,
+    identity_accuracy,
+    register_sequence,
+    register_trajectories,
+    resample_trajectory,
+    time_warp_trajectory,
+    trajectory_from_srvf,
+    trajectory_srvf,
+)
+from torch4dtree.trees import Trees, TreeSequence
+
+# ----------------------------------------------------------------------------- helpers
+
+
+def smooth_trajectories(B: int, k: int, gen: torch.Generator, modes: int = 3):
+    """A batch of smooth random trajectories in R^k as a function ``t (B, n) -> (B, n, k)`` of time.
+
+    A random drift plus random low-frequency sines, so the speed stays away from zero (a warp is only
+    identifiable where the trajectory moves).
+    """
+    m = torch.arange(1, modes + 1, dtype=torch.float64)
+    amp = torch.randn(B, modes, k, generator=gen, dtype=torch.float64) / m[:, None] * 0.5
+    phase = torch.rand(B, modes, k, generator=gen, dtype=torch.float64) * 2 * math.pi
+    drift = torch.randn(B, k, generator=gen, dtype=torch.float64)
+    start = torch.randn(B, k, generator=gen, dtype=torch.float64)
+
+    def f(t: torch.Tensor) -> torch.Tensor:
+        waves = torch.sin(0.5 * math.pi * m[None, :, None, None] * t[:, None, None, :] + phase[..., None])
+        return start[:, None] + drift[:, None] * t[..., None] + torch.einsum("bmk,bmkn->bnk", amp, waves)
+
+    return f
+
+
+def warped_pair(B: int, k: int, n_t: int, seed: int, strength: float = 1.0, n_frames: int | None = None,
+                modes: int = 3):
+    """``ref (B, n_t, k)`` = f on the grid and ``mov`` = f o gamma on the grid (a random smooth warp ``gamma``),
+    or, with ``n_frames``, f o gamma observed at that many irregular random times and re-sampled on the grid
+    (:func:`resample_trajectory`). The true warp of ``mov`` onto ``ref`` is ``gamma^{-1}`` on the grid."""
+    gen = torch.Generator().manual_seed(seed)
+    f = smooth_trajectories(B, k, gen, modes)
+    grid = torch.linspace(0, 1, n_t, dtype=torch.float64).expand(B, n_t)
+    fine = random_warp(B, 2001, generator=gen, strength=strength)
+    if n_frames is None:
+        mov = f(interpolate_curve(fine[..., None], grid)[..., 0])
+    else:
+        frames = torch.sort(torch.rand(B, n_frames, generator=gen, dtype=torch.float64), dim=1).values
+        frames[:, 0], frames[:, -1] = 0.0, 1.0
+        mov = resample_trajectory(f(interpolate_curve(fine[..., None], frames)[..., 0]), frames, n_t)
+    true = interpolate_curve(invert_warp(fine)[..., None], grid)[..., 0]
+    return f(grid), mov, true
+
+
+# ----------------------------------------------------------------------------- trajectories
+
+
+def test_resample_exact_on_linear_data_with_irregular_times():
+    gen = torch.Generator().manual_seed(0)
+    times = torch.tensor([3.0, 4.0, 7.0, 8.0, 13.0], dtype=torch.float64)  # irregular days, gaps
+    a, b = torch.randn(6, generator=gen, dtype=torch.float64), torch.randn(6, generator=gen, dtype=torch.float64)
+    tn = (times - 3.0) / 10.0
+    coeffs = a + tn[:, None] * b
+    out = resample_trajectory(coeffs, times, n_t=17)
+    grid = torch.linspace(0, 1, 17, dtype=torch.float64)
+    assert out.shape == (17, 6)
+    torch.testing.assert_close(out, a + grid[:, None] * b, rtol=0, atol=1e-12)
+
+
+def test_resample_matches_numpy_interp_batched_with_per_sequence_times():
+    rng = np.random.default_rng(1)
+    B, n, k, n_t = 3, 6, 4, 25
+    times = np.sort(rng.uniform(0, 30, size=(B, n)), axis=1)
+    coeffs = rng.normal(size=(B, n, k))
+    out = resample_trajectory(torch.from_numpy(coeffs), torch.from_numpy(times), n_t)
+    grid = np.linspace(0, 1, n_t)
+    for b in range(B):
+        tn = (times[b] - times[b, 0]) / (times[b, -1] - times[b, 0])
+        ref = np.stack([np.interp(grid, tn, coeffs[b, :, c]) for c in range(k)], -1)
+        np.testing.assert_allclose(out[b].numpy(), ref, atol=1e-12)
+        # the frames themselves are hit where a grid time falls on them (first and last always)
+        np.testing.assert_allclose(out[b, [0, -1]].numpy(), coeffs[b, [0, -1]], atol=1e-12)
+    # shared times broadcast over the batch
+    shared = resample_trajectory(torch.from_numpy(coeffs), torch.from_numpy(times[0]), n_t)
+    torch.testing.assert_close(shared[0], out[0])
+
+
+def test_resample_rejects_bad_times():
+    c = torch.zeros(4, 3, dtype=torch.float64)
+    with pytest.raises(ValueError, match="strictly increasing"):
+        resample_trajectory(c, torch.tensor([0.0, 1.0, 1.0, 2.0]))
+    with pytest.raises(ValueError, match="shape"):
+        resample_trajectory(c, torch.tensor([0.0, 1.0, 2.0]))
+    with pytest.raises(ValueError, match="n_t"):
+        resample_trajectory(c, torch.arange(4.0), n_t=1)
+
+
+def test_trajectory_srvf_round_trip_any_dimension():
+    gen = torch.Generator().manual_seed(2)
+    for k in (1, 3, 10):
+        alpha = torch.randn(2, 5, 32, k, generator=gen, dtype=torch.float64).cumsum(-2)
+        start, q = trajectory_srvf(alpha)
+        assert start.shape == (2, 5, k) and q.shape == (2, 5, 31, k)
+        torch.testing.assert_close(trajectory_from_srvf(start, q), alpha, rtol=0, atol=1e-10)
+        # ||q||^2 is the length of the trajectory
+        length = torch.diff(alpha, dim=-2).norm(dim=-1).sum(-1)
+        torch.testing.assert_close(srvf_sq_norm(q), length)
+
+
+# ----------------------------------------------------------------------------- temporal registration
+
+
+@pytest.mark.parametrize("k", [3, 6, 10])
+def test_warp_recovered_on_time_warped_copy(k):
+    ref, mov, true = warped_pair(16, k, 32, seed=k)
+    r = register_trajectories(ref, mov)
+    assert r.warp.shape == (16, 32) and r.registered.shape == (16, 32, k) and r.q_registered.shape == (16, 31, k)
+    err = (r.warp - true).abs().mean(-1)
+    assert float(err.max()) < 0.02, err
+    # the warp is a warp: monotone, fixed ends
+    assert bool((torch.diff(r.warp, dim=-1) >= 0).all())
+    assert bool((r.warp[:, 0] == 0).all()) and bool((r.warp[:, -1] == 1).all())
+    torch.testing.assert_close(r.registered, time_warp_trajectory(mov, r.warp))
+    torch.testing.assert_close(r.q_registered, srvf(r.registered))
+    # the optimiser reaches what the true warp achieves on this grid (both leave a discretisation residual)
+    at_truth = srvf_sq_norm(srvf(ref) - srvf(time_warp_trajectory(mov, true))).sqrt()
+    assert bool((r.distance <= at_truth + 0.03 * r.distance_before).all()), (r.distance - at_truth) / r.distance_before
+
+
+@pytest.mark.parametrize("k", [3, 10])
+def test_distance_falls_by_95_percent(k):
+    """On a grid that resolves the warped copy (the residual of linear interpolation shrinks like 1 / n_t:
+    up to ~15 % of the initial distance at n_t = 32 for these trajectories, ~5 % at 96), registration
+    removes at least 95 % of the distance to a time-warped copy; the copy is observed at irregular times."""
+    ref, mov, true = warped_pair(12, k, 96, seed=20 + k, modes=2, n_frames=400)
+    r = register_trajectories(ref, mov)
+    assert bool((r.distance <= 0.05 * r.distance_before).all()), r.distance / r.distance_before
+    assert float((r.warp - true).abs().mean(-1).max()) < 0.02
+
+
+def test_self_registration_is_identity():
+    gen = torch.Generator().manual_seed(3)
+    alpha = smooth_trajectories(4, 5, gen)(torch.linspace(0, 1, 32, dtype=torch.float64).expand(4, 32))
+    r = register_trajectories(alpha, alpha)
+    assert float(r.distance.abs().max()) == 0.0 and float(r.distance_before.abs().max()) == 0.0
+    torch.testing.assert_close(r.warp, torch.linspace(0, 1, 32, dtype=torch.float64).expand(4, 32), rtol=0, atol=1e-12)
+
+
+def test_symmetric_and_never_worse_than_identity():
+    gen = torch.Generator().manual_seed(4)
+    grid = torch.linspace(0, 1, 32, dtype=torch.float64).expand(20, 32)
+    a = smooth_trajectories(20, 4, gen)(grid)
+    b = smooth_trajectories(20, 4, gen)(grid)
+    ab, ba = register_trajectories(a, b), register_trajectories(b, a)
+    assert bool((ab.distance <= ab.distance_before).all()) and bool((ba.distance <= ba.distance_before).all())
+    torch.testing.assert_close(ab.distance_before, ba.distance_before)
+    # the optimum is symmetric; the discrete optimiser only approximately so
+    rel = (ab.distance - ba.distance).abs() / ab.distance
+    assert float(rel.max()) < 0.05, rel
+    # on a warped copy, the two directions' warps are inverse to each other: xi_ab o xi_ba ~ id
+    ref, mov, _ = warped_pair(8, 4, 32, seed=11)
+    ab, ba = register_trajectories(ref, mov), register_trajectories(mov, ref)
+    comp = interpolate_curve(ab.warp[..., None], ba.warp)[..., 0]
+    assert float((comp - grid[:8]).abs().mean(-1).max()) < 0.02
+
+
+def test_start_point_term():
+    """Translating the moving trajectory adds ``||c||^2`` to the squared distance and leaves the warp alone."""
+    ref, mov, _ = warped_pair(6, 4, 32, seed=5)
+    c = torch.tensor([0.3, -1.0, 2.0, 0.5], dtype=torch.float64)
+    r0, r1 = register_trajectories(ref, mov), register_trajectories(ref, mov + c)
+    torch.testing.assert_close(r1.warp, r0.warp)
+    start_sq = (ref[:, 0] - mov[:, 0] - c).square().sum(-1) - (ref[:, 0] - mov[:, 0]).square().sum(-1)
+    torch.testing.assert_close(r1.distance.square(), r0.distance.square() + start_sq)
+    torch.testing.assert_close(r1.distance_before.square(), r0.distance_before.square() + start_sq)
+
+
+def test_batched_equals_one_by_one_and_leading_dims():
+    ref, mov, _ = warped_pair(6, 3, 24, seed=6)
+    r = register_trajectories(ref.reshape(2, 3, 24, 3), mov.reshape(2, 3, 24, 3))
+    assert r.warp.shape == (2, 3, 24) and r.distance.shape == (2, 3)
+    for i in range(6):
+        one = register_trajectories(ref[i], mov[i])
+        assert one.warp.shape == (24,) and one.distance.shape == ()
+        torch.testing.assert_close(one.warp, r.warp.reshape(6, 24)[i], rtol=0, atol=1e-12)
+        torch.testing.assert_close(one.distance, r.distance.reshape(6)[i])
+
+
+def test_distance_is_differentiable():
+    ref, mov, _ = warped_pair(3, 4, 24, seed=7)
+    ref.requires_grad_(True)
+    r = register_trajectories(ref, mov)
+    r.distance.sum().backward()
+    assert ref.grad is not None and bool(torch.isfinite(ref.grad).all()) and float(ref.grad.abs().sum()) > 0
+
+
+def test_bad_trajectory_inputs():
+    a = torch.zeros(32, 3, dtype=torch.float64)
+    with pytest.raises(ValueError, match="same shape"):
+        register_trajectories(a, torch.zeros(24, 3, dtype=torch.float64))
+    with pytest.raises(ValueError, match="NaN"):
+        register_trajectories(a, torch.full((32, 3), math.nan, dtype=torch.float64))
+    with pytest.raises(ValueError, match=r"\[0, 1\]"):
+        time_warp_trajectory(a, torch.linspace(0, 2, 32, dtype=torch.float64))
+
+
+def test_time_warp_of_linear_trajectory():
+    gen = torch.Generator().manual_seed(8)
+    a, b = torch.randn(3, dtype=torch.float64, generator=gen), torch.randn(3, dtype=torch.float64, generator=gen)
+    grid = torch.linspace(0, 1, 20, dtype=torch.float64)
+    alpha = a + grid[:, None] * b
+    xi = random_warp(4, 20, generator=gen)
+    out = time_warp_trajectory(alpha, xi)  # leading dims broadcast: (20, 3) with (4, 20)
+    assert out.shape == (4, 20, 3)
+    torch.testing.assert_close(out, a + xi[..., None] * b, rtol=0, atol=1e-12)
+
+
+def test_geodesic4d_is_the_straight_line():
+    ref, mov, _ = warped_pair(2, 5, 32, seed=9)
+    mov = mov + 0.7
+    r = register_trajectories(ref, mov)
+    (s1, q1), (s2, q2) = trajectory_srvf(ref), trajectory_srvf(r.registered)
+    path = geodesic4d(s1, q1, s2, q2, steps=5)
+    assert path.shape == (5, 2, 32, 5)
+    torch.testing.assert_close(path[0], ref, rtol=0, atol=1e-10)
+    torch.testing.assert_close(path[-1], r.registered, rtol=0, atol=1e-10)
+    # equally spaced in (start, q): consecutive points are a quarter of the registered distance apart
+    starts, qs = path[:, :, 0], srvf(path)
+    step = ((starts[1:] - starts[:-1]).square().sum(-1) + srvf_sq_norm(qs[1:] - qs[:-1])).sqrt()
+    torch.testing.assert_close(step, (r.distance / 4).expand(4, 2))
+
+
+# ----------------------------------------------------------------------------- within-sequence registration
+
+T_SMALL = 24
+# lp = 50: with lp = 1 the position term is negligible for plants in mm and similar leaves at neighbouring
+# nodes swap (tomato: worst consecutive pair 92.9 % correct over 6 plants x 8 frames); lp in [30, 100] gives
+# 100 % on tomato and maize, lp >= 300 starts to hurt maize (temporal/bench.py)
+LAMBDAS = (1.0, 1.0, 50.0)
+
+
+@pytest.fixture(scope="module", params=["tomato", "maize"])
+def plant_and_aligned(request):
+    # float64: the registration reports its warps in the frames' dtype, and the layout test is exact
+    plant = synthetic_plant(request.param, seed=3, n_frames=5, T=T_SMALL, dtype=torch.float64)
+    return plant, register_sequence(plant.sequence, lambdas=LAMBDAS)
+
+
+def test_identities_agree_with_ground_truth(plant_and_aligned):
+    plant, al = plant_and_aligned
+    acc = identity_accuracy(al, plant.sequence.frames.label)
+    assert acc.per_pair.shape == (len(plant.sequence) - 1,)
+    assert float(acc.per_pair.min()) >= 0.95, acc
+    assert acc.sequence >= 0.95, acc
+
+
+def test_identity_table_and_late_branches(plant_and_aligned):
+    plant, al = plant_and_aligned
+    seq = plant.sequence
+    n, S = al.identity.shape
+    counts = seq.frames.num_branches
+    assert isinstance(al, AlignedSequence) and len(al) == n == len(seq)
+    assert S >= int(counts.max())
+    # the last frame's branches are the first slots, in packed order
+    torch.testing.assert_close(al.identity[-1, : int(counts[-1])], torch.arange(int(counts[-1])))
+    # each frame's branches appear exactly once
+    for j in range(n):
+        ids = al.identity[j][al.identity[j] >= 0]
+        assert sorted(ids.tolist()) == list(range(int(counts[j])))
+    present = al.identity >= 0
+    assert torch.equal(present, al.aligned.present)
+    # absent slots are null branches
+    assert float(al.aligned.q[~present].abs().max()) == 0.0
+    # an organ that appears late (ground truth) sits in a slot that is a null branch in every earlier frame
+    ptr, lab = seq.frames.ptr.tolist(), seq.frames.label.tolist()
+    first: dict[int, tuple[int, int]] = {}
+    for j in range(n):
+        for k, b in enumerate(al.identity[j].tolist()):
+            if b >= 0 and lab[ptr[j] + b] not in first:
+                first[lab[ptr[j] + b]] = (j, k)
+    late = [(j, k) for j, k in first.values() if j > 0]
+    assert late
+    for j, k in late:
+        assert not bool(present[:j, k].any()) and float(al.aligned.q[:j, k].abs().max()) == 0.0
+
+
+def test_layout_keeps_consecutive_distances(plant_and_aligned):
+    """Frames in the sequence layout are as far apart as their own registration said: exactly for the last
+    pair (its parameterisation is the common one), up to discretisation for earlier pairs (both are
+    reparameterised by the same composed warps, an isometry up to resampling and the s terms)."""
+    _, al = plant_and_aligned
+    f = al.aligned.features()
+    d = (f[1:] - f[:-1]).norm(dim=-1)
+    torch.testing.assert_close(d[-1], al.distances[-1], rtol=1e-9, atol=1e-9)
+    torch.testing.assert_close(d, al.distances, rtol=0.01, atol=0.0)
+
+
+def test_representative(plant_and_aligned):
+    plant, al = plant_and_aligned
+    rep = al.representative()
+    assert rep.num_trees == 1 and int(rep.num_branches[0]) == al.num_slots
+    assert sorted(rep.label.tolist()) == list(range(al.num_slots))
+    # each slot's branch is the one of its latest frame: synthetic organs only grow, so the longest one
+    frames = plant.sequence.frames
+    ptr = frames.ptr.tolist()
+    lengths = frames.branch_lengths().double().tolist()
+    for i, k in enumerate(rep.label.tolist()):
+        longest = max(lengths[ptr[j] + b] for j, b in enumerate(al.identity[:, k].tolist()) if b >= 0)
+        assert float(rep.branch_lengths()[i]) == pytest.approx(longest, rel=0.01)
+    torch.testing.assert_close(rep.root()[0], frames.root()[-1].double())
+    assert al.normalized_times()[0] == 0 and al.normalized_times()[-1] == 1
+
+
+def _transformed(tree: Trees, gen: torch.Generator, strength: float) -> tuple[Trees, torch.Tensor]:
+    """The tree with every branch reparameterised (children moved with their parent's warp) and rotated about
+    its root by a random rotation ``P``; returns it and ``P``."""
+    N, T, _ = tree.points.shape
+    g = random_warp(N, T, generator=gen, strength=strength)
+    pts = warp_curve(tree.points, g)
+    gp = tree.global_parent
+    s = torch.where(gp >= 0, interpolate_curve(invert_warp(g[gp.clamp(min=0)])[..., None], tree.s[:, None])[:, 0, 0],
+                    tree.s)
+    P = random_rotation(1, 3, generator=gen)[0]
+    root = pts[0, 0]
+    return Trees((pts - root) @ P.T + root, tree.parent, s, tree.num_branches, tree.label), P
+
+
+def test_one_shape_under_warps_and_rotations_becomes_constant():
+    """Frames that are one tree, differently parameterised and rotated: every frame's branch keeps its
+    identity, the composed rotations undo the applied ones (R_j = P_last P_j^T, the order matters in
+    SO(3)) and all frames coincide in the layout (the composed warps undo the applied ones)."""
+    base = synthetic_plant("maize", seed=1, n_frames=3, T=32, dtype=torch.float64).sequence.frames[-1]
+    gen = torch.Generator().manual_seed(10)
+    frames, rots = zip(*(_transformed(base, gen, 0.6) for _ in range(3)))
+    seq = TreeSequence(Trees.cat(list(frames)), torch.tensor([0.0, 1.0, 3.0], dtype=torch.float64))
+    al = register_sequence(seq, rotation="so3", neighbourhood=6)
+    N = int(base.num_branches[0])
+    assert torch.equal(al.identity, torch.arange(N).expand(3, N))
+    for j in range(3):
+        torch.testing.assert_close(al.rotations[j], rots[-1] @ rots[j].T, rtol=0, atol=0.02)
+    # each frame lands where the chain of registrations puts it: at most the sum of the residual distances of
+    # the registrations between it and the last frame (each a few % of the tree's norm at T = 32)
+    f = al.aligned.features()
+    spread = (f - f[-1]).norm(dim=-1)
+    chain = al.distances.flip(0).cumsum(0).flip(0)
+    assert bool((spread[:-1] <= 1.02 * chain).all()), (spread, chain)
+    assert float(spread.max()) < 0.1 * float(f[-1].norm())
+
+
+def test_single_frame_sequence():
+    seq = synthetic_plant("maize", seed=2, n_frames=3, T=T_SMALL).sequence[[1]]
+    al = register_sequence(seq)
+    assert len(al) == 1 and al.distances.shape == (0,)
+    assert torch.equal(al.identity[0], torch.arange(int(seq.frames.num_branches[0])))
+    assert int(al.representative().num_branches[0]) == al.num_slots
+
+
+def test_register_sequence_rejects_bad_input():
+    seq = synthetic_plant("maize", seed=2, n_frames=3, T=T_SMALL).sequence
+    with pytest.raises(TypeError, match="TreeSequence"):
+        register_sequence(seq.frames)
+    with pytest.raises(ValueError, match="lambdas"):
+        register_sequence(seq, lambdas=(1.0, -1.0, 1.0))
+    with pytest.raises(ValueError, match="labels"):
+        identity_accuracy(register_sequence(seq[[0]]), seq.frames.label)

@@ -1,0 +1,18 @@
+"""4D trees (SPEC §5): within-sequence registration, trajectories in R^k, temporal registration, 4D geodesics.
+
+* :mod:`.within` registers every frame onto the next and writes a sequence in one slot layout
+  (:class:`AlignedSequence`, one identity and one parameterisation per slot);
+* :mod:`.trajectory` resamples per-frame coordinates on a common time grid and maps trajectories to
+  their SRVFs and back;
+* :mod:`.registration` finds optimal time warps between trajectories (batched DP) and 4D geodesics.
+"""
+
+from .registration import TemporalRegistration, geodesic4d, register_trajectories, time_warp_trajectory
+from .trajectory import Trajectory, resample_trajectory, trajectory_from_srvf, trajectory_srvf
+from .within import AlignedSequence, IdentityAccuracy, identity_accuracy, register_sequence
+
+__all__ = [
+    "AlignedSequence", "IdentityAccuracy", "TemporalRegistration", "Trajectory", "geodesic4d", "identity_accuracy",
+    "register_sequence", "register_trajectories", "resample_trajectory", "time_warp_trajectory",
+    "trajectory_from_srvf", "trajectory_srvf",
+]
