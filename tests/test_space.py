@@ -101,7 +101,9 @@ def test_mean_of_two_trees_in_correspondence_is_the_geodesic_midpoint():
 def test_energy_never_increases(fitted):
     km, _ = fitted
     energies = [h["energy"] for h in km.history]
-    assert len(energies) == km.n_iter_ == 6  # tol = 0: every round runs
+    # tol = 0: every round runs, unless the mean stops moving exactly (a fixed point)
+    assert len(energies) == km.n_iter_
+    assert km.n_iter_ == 6 or (km.converged_ and km.history[-1]["rel_change"] == 0.0)
     assert all(b <= a * (1 + 1e-12) for a, b in zip(energies, energies[1:])), energies
     assert energies[-1] < energies[0]
     assert [h["num_slots"] for h in km.history][-1] == km.num_slots
@@ -236,7 +238,8 @@ def test_state_dict_round_trip(tmp_path):
     torch.save(km.state_dict(), tmp_path / "km.pt")
     km2 = KarcherMean()
     km2.load_state_dict(torch.load(tmp_path / "km.pt", weights_only=True))
-    assert km2.lambdas == (1.0, 0.5, 2.0) and km2.registration == {"neighbourhood": 3}
+    assert km2.lambdas == km.lambdas and km2.lp_relative == km.lp_relative is False  # the effective weights
+    assert km2.registration == {"neighbourhood": 3}
     assert str(km2.history) == str(km.history) and km2.n_iter_ == km.n_iter_ and km2.converged_ == km.converged_
     for name, buf in km.named_buffers():
         assert torch.equal(buf, getattr(km2, name)), name

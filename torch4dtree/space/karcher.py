@@ -304,6 +304,9 @@ class KarcherMean(FittedModule):
         progress: a tqdm bar over the iterations.
         registration: keyword arguments of :func:`~torch4dtree.trees.register_to_reference` (``n_starts``,
             ``neighbourhood``, ``up``...; its ``max_iters`` / ``tol`` are the registration's own).
+        lp_relative: ``lp`` is relative to the trees' size (as in :func:`~torch4dtree.trees.register_to_reference`):
+            ``fit`` multiplies it once by the median main-branch length of the trees, so that one metric holds
+            for every round; afterwards ``lambdas`` holds the effective weights and ``lp_relative`` is False.
 
     Fitted buffers (float in the dtype of the fitted trees; ``.to()`` moves and casts them):
     ``mean_q (S, M, d)``, ``mean_s (S,)``, ``mean_root (d,)``, ``slot_parent (S,)``, ``slot_depth (S,)``.
@@ -324,9 +327,10 @@ class KarcherMean(FittedModule):
     def __init__(self, lambdas: Sequence[float] = (1.0, 1.0, 1.0), rotation: str = "none", max_iters: int = 20,
                  tol: float = 1e-4, max_slots: int = 512, prune_length: float = DEFAULT_PRUNE,
                  init: str | int = "medoid", medoid_subsample: int = 8, progress: bool = True,
-                 registration: Mapping[str, Any] | None = None) -> None:
+                 registration: Mapping[str, Any] | None = None, lp_relative: bool = True) -> None:
         super().__init__()
         self.lambdas: Lambdas = _check_lambdas(lambdas)
+        self.lp_relative = bool(lp_relative)
         if rotation not in ROTATIONS:
             raise ValueError(f"rotation must be one of {ROTATIONS}, got {rotation!r}")
         if max_iters < 1 or not tol >= 0 or max_slots < 1 or not prune_length >= 0 or medoid_subsample < 1:
@@ -356,7 +360,8 @@ class KarcherMean(FittedModule):
 
     # ------------------------------------------------------------------------ state
     def get_extra_state(self) -> dict[str, Any]:
-        return {"version": 1, "lambdas": list(self.lambdas), "rotation": self.rotation, "max_iters": self.max_iters,
+        return {"version": 1, "lambdas": list(self.lambdas), "lp_relative": self.lp_relative,
+                "rotation": self.rotation, "max_iters": self.max_iters,
                 "tol": self.tol, "max_slots": self.max_slots, "prune_length": self.prune_length, "init": self.init,
                 "medoid_subsample": self.medoid_subsample, "registration": dict(self.registration),
                 "history": [dict(h) for h in self.history], "n_iter": self.n_iter_, "converged": self.converged_,
@@ -366,6 +371,7 @@ class KarcherMean(FittedModule):
         if not isinstance(state, dict) or state.get("version") != 1:
             raise ValueError("not a KarcherMean state (missing or unknown version)")
         self.lambdas = _check_lambdas(state["lambdas"])
+        self.lp_relative = bool(state.get("lp_relative", False))
         self.rotation, self.max_iters, self.tol = state["rotation"], state["max_iters"], state["tol"]
         self.max_slots, self.prune_length, self.init = state["max_slots"], state["prune_length"], state["init"]
         self.medoid_subsample, self.registration = state["medoid_subsample"], dict(state["registration"])
@@ -443,7 +449,8 @@ class KarcherMean(FittedModule):
                                 torch.tensor(dropped_sq, dtype=torch.float64).to(**like))
 
     def _register(self, trees: Trees, mean: _Mean) -> list[_Registered]:
-        regs = register_to_reference(trees, _decode(mean), self.lambdas, self.rotation, **self.registration)
+        regs = register_to_reference(trees, _decode(mean), self.lambdas, self.rotation, lp_relative=False,
+                                     **self.registration)
         return [_registered(r) for r in regs]
 
     def _initial_mean(self, trees: Trees) -> tuple[_Mean, list[_Registered] | None]:
@@ -534,6 +541,10 @@ class KarcherMean(FittedModule):
         self.history, self.n_iter_, self.converged_ = [], 0, False
         bar = tqdm(total=self.max_iters, disable=not self.progress, desc="Karcher mean", unit="iter")
         start = time.perf_counter()
+        if self.lp_relative:  # one metric for all rounds: lp relative to the trees' median main-branch length
+            main = trees.branch_lengths()[trees.main_index]
+            self.lambdas = (self.lambdas[0], self.lambdas[1], self.lambdas[2] * float(main.median()))
+            self.lp_relative = False
         mean, forms = self._initial_mean(trees)
         carry: _Carry | None = None
         change = math.nan

@@ -28,7 +28,7 @@ from torch import Tensor
 from ..curves.srvf import srvf, uniform_grid, warp_srvf
 from ..curves.warps import compose_warps
 from ..trees.aligned import AlignedTrees
-from ..trees.registration import TreeRegistration, register_trees
+from ..trees.registration import TreeRegistration, effective_lambdas, register_trees
 from ..trees.structures import Trees, TreeSequence
 
 __all__ = ["AlignedSequence", "IdentityAccuracy", "identity_accuracy", "register_sequence"]
@@ -117,15 +117,19 @@ def _rotate(q: Tensor, R: Tensor) -> Tensor:
 
 
 def register_sequence(seq: TreeSequence, lambdas: Sequence[float] = (1.0, 1.0, 1.0), rotation: str = "none",
-                      progress: bool = False, **registration_kwargs: object) -> AlignedSequence:
+                      progress: bool = False, lp_relative: bool = True,
+                      **registration_kwargs: object) -> AlignedSequence:
     """Register every frame of a 4D tree onto its next frame and write all frames in one layout.
 
     Args:
         seq: the 4D tree (frames in time order).
-        lambdas: ``(lm, ls, lp)`` metric weights (SPEC §3 order), also those of the returned layout. For plants
-            in mm, ``lp`` in ``[30, 100]`` kept every synthetic organ's identity (6 tomato and 6 maize plants,
-            8 frames); with ``lp = 1`` the position term is negligible and similar tomato leaves at neighbouring
-            nodes swap (worst consecutive pair 92.9 % correct); ``lp >= 300`` starts to mismatch maize leaves.
+        lambdas: ``(lm, ls, lp)`` metric weights (SPEC §3 order), also those of the returned layout.
+        lp_relative: ``lp`` is relative to the plant's size (:func:`torch4dtree.trees.effective_lambdas`): each
+            registration of frame ``j`` onto ``j + 1`` scales it by frame ``j + 1``'s main-branch length (a
+            child shifted by a share of its parent costs the same at every age; scaling every pair by the last
+            frame's length over-weighted positions in young frames and swapped their leaves), and the layout's
+            metric uses the last frame's. For plants in mm an absolute ``lp = 1`` is negligible and similar
+            leaves at neighbouring nodes swap.
         rotation: ``"none"`` (frames share a frame of reference, as scans do), ``"vertical"`` or ``"so3"``.
         progress: show a progress bar over the ``n - 1`` registrations.
         registration_kwargs: passed to :func:`torch4dtree.trees.register_trees` (DP settings, ``up``, ...).
@@ -146,13 +150,14 @@ def register_sequence(seq: TreeSequence, lambdas: Sequence[float] = (1.0, 1.0, 1
 
         single = frames.split()
         regs: list[TreeRegistration] = [
-            register_trees(single[j], single[j + 1], lam, rotation, **registration_kwargs)
+            register_trees(single[j], single[j + 1], lam, rotation, lp_relative=lp_relative, **registration_kwargs)
             for j in tqdm(range(n - 1), disable=not progress, desc=f"registering {seq.name or 'sequence'}",
                           unit="pair")
         ]
     else:
         regs = []
-    return _chain(frames, seq.times, regs, lam, seq.name)  # type: ignore[arg-type]
+    layout_lambdas = effective_lambdas(lam, frames[n - 1]) if lp_relative else lam
+    return _chain(frames, seq.times, regs, layout_lambdas, seq.name)  # type: ignore[arg-type]
 
 
 def _chain(frames: Trees, times: Tensor, regs: list[TreeRegistration], lambdas: tuple[float, float, float],
@@ -262,11 +267,15 @@ class IdentityAccuracy(NamedTuple):
     sequence: float
 
 
-def identity_accuracy(aligned: AlignedSequence, labels: Tensor) -> IdentityAccuracy:
+def identity_accuracy(aligned: AlignedSequence, labels: Tensor, ignore: Sequence[int] = (-1, 99)
+                      ) -> IdentityAccuracy:
     """Score the identity table against ground-truth ``labels (N,)`` of the sequence's packed branches.
 
-    ``labels`` is e.g. ``seq.frames.label``; branches labelled ``-1`` (unknown) are left out.
+    ``labels`` is e.g. ``seq.frames.label``; branches whose label is in ``ignore`` are left out: ``-1`` (unknown)
+    and ``99``, the synthetic plants' skeletonisation spurs (:data:`torch4dtree.data.SPUR_LABEL`), which are
+    different bits of noise in every frame.
     """
+    skip = set(ignore)
     ident = aligned.identity.cpu()
     n, S = ident.shape
     counts = (ident >= 0).sum(1)
@@ -283,7 +292,7 @@ def identity_accuracy(aligned: AlignedSequence, labels: Tensor) -> IdentityAccur
         for x, y in ((j, j + 1), (j + 1, j)):
             there = set(v for v in slot_label[y] if v is not None)
             for k, v in enumerate(slot_label[x]):
-                if v is None or v < 0:
+                if v is None or v in skip:
                     continue
                 tot += 1
                 ok += slot_label[y][k] == v if v in there else slot_label[y][k] is None
@@ -291,12 +300,12 @@ def identity_accuracy(aligned: AlignedSequence, labels: Tensor) -> IdentityAccur
     home: dict[int, int] = {}
     for j in range(n):  # later frames overwrite: the organ's slot at its latest appearance
         for k, v in enumerate(slot_label[j]):
-            if v is not None and v >= 0:
+            if v is not None and v not in skip:
                 home[v] = k
     ok = tot = 0
     for j in range(n):
         for k, v in enumerate(slot_label[j]):
-            if v is not None and v >= 0:
+            if v is not None and v not in skip:
                 tot += 1
                 ok += home[v] == k
     return IdentityAccuracy(torch.tensor(per_pair, dtype=torch.float64), ok / max(tot, 1))

@@ -1,0 +1,251 @@
+"""Spatiotemporal registration of two 4D trees (SPEC §5, paper §4.2) and their 4D geodesic.
+
+The pipeline, for 4D trees ``A`` (reference) and ``B`` (moving):
+
+1. **Within-sequence registration** (:func:`register_sequence`): each 4D tree's frames in one slot layout, a slot
+   being one branch identity over the whole sequence.
+2. **Cross-sequence spatial registration**: ``B``'s representative tree (every slot's branch from the latest
+   frame holding it, in the sequence's own parameterisation) is registered onto ``A``'s. The correspondence,
+   warps and rotation found are applied to *every* frame of ``B``, so identities stay consistent over time; both
+   4D trees are written into one union layout (``A``'s slots, then ``B``'s unmatched ones).
+3. **Tree space**: PCA of all frames' weighted SRVFT features (all components by default, so coefficient
+   distances are exactly tree distances); each 4D tree becomes a trajectory in ``R^k``, resampled at ``n_t``
+   equally spaced normalised times between its actual frame times.
+4. **Temporal registration** (:func:`register_trajectories`): the optimal time warp of ``B``'s trajectory onto
+   ``A``'s and the rate-invariant distance.
+
+The three distances reported are the same 4D distance, ``sqrt(||alpha_A(0) - alpha_B(0)||^2 + ||q_A - q_B||^2)``
+with ``q`` the SRVF of the trajectory: before any registration (``B``'s slots matched to ``A``'s in index order,
+identity warps and rotation), after the spatial registration, and after the temporal one.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from typing import NamedTuple
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from ..curves.srvf import interpolate_curve, inverse_srvf, warp_srvf
+from ..space.pca import TreePCA
+from ..trees.aligned import AlignedTrees
+from ..trees.registration import effective_lambdas, index_order_matches, register_trees
+from ..trees.structures import Trees, TreeSequence
+from .registration import TemporalRegistration, geodesic4d, register_trajectories
+from .trajectory import resample_trajectory, trajectory_srvf
+from .within import AlignedSequence, register_sequence
+
+__all__ = ["SpatiotemporalRegistration", "combine_sequences", "register4d", "representative_tree"]
+
+DEFAULT_NT = 32
+
+
+def representative_tree(seq: AlignedSequence) -> Trees:
+    """``seq``'s representative as a :class:`Trees` in the sequence's own parameterisation (``label`` = slot).
+
+    Every slot's SRVF from the latest frame holding it is integrated as it is (not resampled in arc length), so a
+    registration of this tree gives warps that act directly on the sequence's slots. Packed order = slot order.
+    """
+    a = seq.aligned
+    last = seq.latest_frame()
+    S = seq.num_slots
+    slots = torch.arange(S, device=last.device)
+    q, s = a.q[last, slots], a.s[last, slots]
+    parent = a.slot_parent.tolist()
+    curves: list[Tensor] = []
+    for k in range(S):  # parents come first
+        start = a.root[-1] if k == 0 else interpolate_curve(curves[parent[k]][None], s[k].reshape(1, 1))[0, 0]
+        curves.append(inverse_srvf(q[k], start))
+    s_out = torch.where(a.slot_parent >= 0, s, torch.zeros_like(s)).clamp(0, 1)
+    return Trees(torch.stack(curves), a.slot_parent.clone(), s_out, torch.tensor([S], device=last.device),
+                 slots.clone())
+
+
+def _warp_parameter(s: Tensor, gamma: Tensor) -> Tensor:
+    """``gamma^{-1}(s)`` for a warp ``gamma (T,)`` on the uniform grid (where a child sits on its warped parent)."""
+    grid = torch.linspace(0, 1, gamma.shape[-1], dtype=gamma.dtype, device=gamma.device)
+    g = gamma.detach().cpu().numpy()
+    return torch.as_tensor(np.interp(s.detach().cpu().numpy(), g, grid.cpu().numpy()), dtype=s.dtype, device=s.device)
+
+
+def combine_sequences(ref: AlignedSequence, mov: AlignedSequence, matches: Sequence[tuple[int, int]],
+                      gamma: Tensor, rotation: Tensor, lambdas: tuple[float, float, float]) -> AlignedTrees:
+    """All frames of ``ref`` then ``mov`` in one union layout, given a correspondence of their slots.
+
+    Args:
+        matches: ``[(mov slot, ref slot), ...]`` (a partial matching that maps parents to parents).
+        gamma: ``(S_mov, T)`` warp of each ``mov`` slot (applied to every frame's branch in that slot).
+        rotation: ``(d, d)`` applied to ``mov``'s SRVFs (row vectors, ``x @ R.T``).
+        lambdas: metric weights of the returned layout.
+
+    Returns:
+        :class:`AlignedTrees` of ``len(ref) + len(mov)`` trees: ``ref``'s slots first (same order), then a slot
+        for every unmatched ``mov`` slot (child of its parent's slot). ``source`` is the sequence's own slot.
+    """
+    ra, ma = ref.aligned, mov.aligned
+    n_r, S_r, M, d = ra.q.shape
+    n_m, S_m = ma.q.shape[:2]
+    slot_of = dict(matches)
+    slot_parent, slot_depth = ra.slot_parent.tolist(), ra.slot_depth.tolist()
+    mov_parent = ma.slot_parent.tolist()
+    for k in range(S_m):  # parents first, so a parent's slot exists
+        if k not in slot_of:
+            slot_of[k] = len(slot_parent)
+            parent = slot_of[mov_parent[k]] if mov_parent[k] >= 0 else -1
+            slot_parent.append(parent)
+            slot_depth.append(slot_depth[parent] + 1)
+    S = len(slot_parent)
+    dev, dt = ra.q.device, ra.q.dtype
+    q = torch.zeros(n_r + n_m, S, M, d, dtype=dt, device=dev)
+    s = torch.zeros(n_r + n_m, S, dtype=dt, device=dev)
+    present = torch.zeros(n_r + n_m, S, dtype=torch.bool, device=dev)
+    source = torch.full((n_r + n_m, S), -1, dtype=torch.long, device=dev)
+    q[:n_r, :S_r], s[:n_r, :S_r], present[:n_r, :S_r] = ra.q, ra.s, ra.present
+    source[:n_r, :S_r] = torch.arange(S_r, device=dev)
+    g = gamma.to(device=dev, dtype=dt)
+    R = rotation.to(device=dev, dtype=dt)
+    idx = torch.tensor([slot_of[k] for k in range(S_m)], device=dev)
+    qm = warp_srvf(ma.q.reshape(n_m * S_m, M, d), g.repeat(n_m, 1)).reshape(n_m, S_m, M, d) @ R.T
+    q[n_r:, idx] = qm * ma.present[..., None, None]
+    # a child's parameter moves with its parent's warp
+    sm = ma.s.clone()
+    for k in range(1, S_m):
+        sm[:, k] = _warp_parameter(ma.s[:, k], g[mov_parent[k]])
+    s[n_r:, idx] = sm
+    present[n_r:, idx] = ma.present
+    source[n_r:, idx] = torch.arange(S_m, device=dev)
+    root = torch.cat([ra.root, ma.root])
+    return AlignedTrees(q, s, present, root, torch.tensor(slot_parent, device=dev),
+                        torch.tensor(slot_depth, device=dev), source, lambdas)
+
+
+class SpatiotemporalRegistration(NamedTuple):
+    """Result of :func:`register4d` (``k`` PCA components, ``n_t`` common times).
+
+    * ``distance_before`` / ``distance_after_spatial`` / ``distance_after_temporal``: floats, the 4D distance
+      (module doc) before registration, after the spatial and after the temporal registration.
+    * ``warp (n_t,)``: the time warp ``xi`` of ``B`` (``B`` at ``xi(t)`` matches ``A`` at ``t``), on
+      ``times (n_t,) = linspace(0, 1, n_t)``.
+    * ``alpha_ref``, ``alpha_mov``, ``alpha_mov_registered``: ``(n_t, k)`` trajectories in the tree space.
+    * ``pca``: the fitted :class:`TreePCA` (decodes coefficients to trees in the common layout).
+    * ``layout``: every frame of both 4D trees in the common layout (:class:`AlignedTrees`, ``A``'s frames first).
+    * ``sequences``: the two within-sequence registrations; ``matches``: ``[(B slot, A slot)]``.
+    * ``temporal``: the :class:`TemporalRegistration`; ``time_span_ref``: ``(t_first, t_last)`` of ``A``.
+    * ``seconds``: wall time per stage.
+    """
+
+    distance_before: float
+    distance_after_spatial: float
+    distance_after_temporal: float
+    warp: Tensor
+    times: Tensor
+    alpha_ref: Tensor
+    alpha_mov: Tensor
+    alpha_mov_registered: Tensor
+    pca: TreePCA
+    layout: AlignedTrees
+    sequences: tuple[AlignedSequence, AlignedSequence]
+    matches: list[tuple[int, int]]
+    temporal: TemporalRegistration
+    time_span_ref: tuple[float, float]
+    seconds: dict[str, float]
+
+    def geodesic(self, steps: int = 5) -> list[TreeSequence]:
+        """The 4D geodesic from ``A`` to ``B`` (after spatiotemporal registration) as ``steps`` 4D trees.
+
+        Each is decoded at the ``n_t`` common times (in ``A``'s time units); branches keep their slot as ``label``.
+        """
+        path = geodesic4d(*trajectory_srvf(self.alpha_ref), *trajectory_srvf(self.alpha_mov_registered), steps)
+        return [self._decode(p) for p in path]
+
+    def _decode(self, alpha: Tensor) -> TreeSequence:
+        t0, t1 = self.time_span_ref
+        times = t0 + self.times.to(torch.float64) * (t1 - t0)
+        return TreeSequence(self.pca.decode(alpha), times.to(self.pca.mean.dtype))
+
+    def decoded(self) -> tuple[TreeSequence, TreeSequence, TreeSequence]:
+        """``A``, ``B`` and ``B`` time-warped onto ``A``, decoded from their trajectories on the common times."""
+        return self._decode(self.alpha_ref), self._decode(self.alpha_mov), self._decode(self.alpha_mov_registered)
+
+
+def _trajectories(layout: AlignedTrees, n_ref: int, ref_times: Tensor, mov_times: Tensor, n_t: int,
+                  n_components: int | None) -> tuple[TreePCA, Tensor, Tensor]:
+    n = layout.num_trees
+    k = n - 1 if n_components is None else n_components
+    pca = TreePCA(n_components=min(k, n - 1)).fit(layout)
+    coeffs = pca.transform(layout)
+    alpha_ref = resample_trajectory(coeffs[:n_ref], ref_times.to(coeffs.dtype), n_t)
+    alpha_mov = resample_trajectory(coeffs[n_ref:], mov_times.to(coeffs.dtype), n_t)
+    return pca, alpha_ref, alpha_mov
+
+
+def register4d(reference: TreeSequence | AlignedSequence, moving: TreeSequence | AlignedSequence,
+               lambdas: Sequence[float] = (1.0, 1.0, 1.0), rotation: str = "none", n_t: int = DEFAULT_NT,
+               n_components: int | None = None, progress: bool = False,
+               **registration_kwargs: object) -> SpatiotemporalRegistration:
+    """Register the 4D tree ``moving`` (``B``) onto ``reference`` (``A``) in space and time (module doc).
+
+    Args:
+        reference, moving: 4D trees (frames in time order, irregular times and missing days allowed), or their
+            within-sequence registrations (:func:`register_sequence`) to reuse.
+        lambdas: ``(lm, ls, lp)``; ``lp`` is relative to ``A``'s main-branch length (as in
+            :func:`torch4dtree.trees.register_to_reference`).
+        rotation: global rotation of ``B`` onto ``A`` (``"none"``, ``"vertical"``, ``"so3"``).
+        n_t: common time samples of the trajectories (finer than the frame count).
+        n_components: PCA components; default all (``frames - 1``), so nothing of the shapes is lost.
+        progress: progress bars for the within-sequence registrations.
+        registration_kwargs: passed to the tree registrations (DP settings, ``up``...).
+
+    Returns:
+        :class:`SpatiotemporalRegistration`.
+    """
+    if n_t < 2:
+        raise ValueError(f"n_t must be at least 2, got {n_t}")
+    seconds: dict[str, float] = {}
+    t0 = time.perf_counter()
+    # one metric for the whole 4D space: lp relative to the reference's last frame (or its representative)
+    ref_tree = representative_tree(reference) if isinstance(reference, AlignedSequence) else None
+    if isinstance(reference, TreeSequence):
+        ref_tree = reference.frames[len(reference) - 1]
+    if ref_tree is None:
+        raise TypeError(f"expected a TreeSequence or an AlignedSequence, got {type(reference).__name__}")
+    lam = effective_lambdas(lambdas, ref_tree)
+    seqs = []
+    for x in (reference, moving):
+        if isinstance(x, AlignedSequence):
+            seqs.append(x)
+        elif isinstance(x, TreeSequence):
+            if len(x) < 2:
+                raise ValueError(f"{x.name or 'a 4D tree'} has {len(x)} frame(s); a 4D tree needs at least 2")
+            seqs.append(register_sequence(x.to(torch.float64), lam, progress=progress, lp_relative=False,
+                                          **registration_kwargs))
+        else:
+            raise TypeError(f"expected a TreeSequence or an AlignedSequence, got {type(x).__name__}")
+    A, B = seqs
+    seconds["within_sequence"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    rep_a, rep_b = representative_tree(A), representative_tree(B)
+    reg = register_trees(rep_b, rep_a, lam, rotation, lp_relative=False, **registration_kwargs)
+    after = combine_sequences(A, B, reg.matches, reg.gamma.to(torch.float64), reg.rotation.to(torch.float64), lam)
+    ident = torch.linspace(0, 1, rep_b.T, dtype=torch.float64).expand(rep_b.points.shape[0], -1)
+    before = combine_sequences(A, B, index_order_matches(rep_b, rep_a), ident, torch.eye(rep_b.dim,
+                               dtype=torch.float64), lam)
+    seconds["cross_sequence"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    n_ref = len(A)
+    _, a0, b0 = _trajectories(before, n_ref, A.times, B.times, n_t, n_components)
+    pca, alpha_a, alpha_b = _trajectories(after, n_ref, A.times, B.times, n_t, n_components)
+    seconds["tree_space"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    d_before = float(register_trajectories(a0, b0).distance_before)
+    temporal = register_trajectories(alpha_a, alpha_b)
+    seconds["temporal"] = time.perf_counter() - t0
+    times = torch.linspace(0, 1, n_t, dtype=alpha_a.dtype)
+    span = (float(A.times[0]), float(A.times[-1]))
+    return SpatiotemporalRegistration(
+        d_before, float(temporal.distance_before), float(temporal.distance), temporal.warp, times, alpha_a, alpha_b,
+        temporal.registered, pca, after, (A, B), list(reg.matches), temporal, span, seconds)
+
