@@ -19,6 +19,7 @@ COMMANDS = (
     ("synth", "synth", "generate a dataset folder of synthetic growing plants"),
     ("info", "info", "summarise a tree file, a sequence folder or a dataset folder"),
     ("register", "register", "register two trees (SWC or .mat): distances, correspondence, geodesic"),
+    ("register4d", "register4d", "register two 4D trees (sequence folders) in space and time"),
     ("render", "render", "render a tree file, sequence or dataset folder to PNG / GIF / MP4"),
     ("benchmark", "benchmark", "time the registration engine"),
 )

@@ -9,6 +9,7 @@ from .dataset import (
     read_tree,
     sequence_folders,
     time_from_name,
+    write_sequence,
 )
 from .files import write_bytes_safely, write_text_safely
 from .mat import MatTreeError, read_mat_tree
@@ -17,5 +18,5 @@ from .swc import Skeleton, SWCError, read_swc, read_swc_skeleton, write_swc
 __all__ = [
     "DatasetError", "LoadOptions", "LoadedSequence", "MatTreeError", "SWCError", "Skeleton",
     "read_dataset", "read_mat_tree", "read_sequence", "read_swc", "read_swc_skeleton", "read_tree",
-    "sequence_folders", "time_from_name", "write_bytes_safely", "write_swc", "write_text_safely",
+    "sequence_folders", "time_from_name", "write_bytes_safely", "write_sequence", "write_swc", "write_text_safely",
 ]

@@ -194,3 +194,26 @@ def read_dataset(
 ) -> list[LoadedSequence]:
     """Read every sequence folder of a dataset folder."""
     return [read_sequence(p, options, progress) for p in sequence_folders(folder)]
+
+
+def write_sequence(folder: str | Path, seq: TreeSequence, overwrite: bool = False, comment: str = "") -> list[Path]:
+    """Write a 4D tree as a sequence folder: one SWC file per frame (``frame_NNN.swc``, branch type = label) and a
+    ``times.json`` manifest. Checks every target first: nothing is written if a file exists and not ``overwrite``.
+    Returns the written paths."""
+    from .files import write_text_safely
+    from .swc import write_swc
+
+    folder = Path(folder)
+    if folder.exists() and not folder.is_dir():
+        raise FileExistsError(f"{folder} exists and is not a folder")
+    names = [f"frame_{j:03d}.swc" for j in range(len(seq))]
+    targets = [folder / n for n in names] + [folder / TIMES_MANIFEST]
+    existing = [str(p) for p in targets if p.exists()]
+    if existing and not overwrite:
+        raise FileExistsError(f"{existing[0]} exists ({len(existing)} file(s) in {folder}); pass overwrite to replace")
+    folder.mkdir(parents=True, exist_ok=True)
+    written = [write_swc(folder / n, seq.frames[j], overwrite=overwrite, comment=comment)
+               for j, n in enumerate(names)]
+    times = {n: float(t) for n, t in zip(names, seq.times.tolist())}
+    written.append(write_text_safely(folder / TIMES_MANIFEST, json.dumps(times, indent=1) + "\n", overwrite))
+    return written
