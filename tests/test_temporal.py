@@ -199,6 +199,14 @@ def test_batched_equals_one_by_one_and_leading_dims():
         torch.testing.assert_close(one.distance, r.distance.reshape(6)[i])
 
 
+def test_torch_backend_agrees():
+    """The vectorised torch DP (any device) gives the numba kernel's warps."""
+    ref, mov, _ = warped_pair(6, 5, 32, seed=12)
+    a, b = register_trajectories(ref, mov), register_trajectories(ref, mov, backend="torch")
+    torch.testing.assert_close(b.warp, a.warp, rtol=0, atol=1e-9)
+    torch.testing.assert_close(b.distance, a.distance)
+
+
 def test_distance_is_differentiable():
     ref, mov, _ = warped_pair(3, 4, 24, seed=7)
     ref.requires_grad_(True)
@@ -381,6 +389,14 @@ def test_one_shape_under_warps_and_rotations_becomes_constant():
     chain = al.distances.flip(0).cumsum(0).flip(0)
     assert bool((spread[:-1] <= 1.02 * chain).all()), (spread, chain)
     assert float(spread.max()) < 0.1 * float(f[-1].norm())
+
+
+def test_aligned_sequence_to(plant_and_aligned):
+    _, al = plant_and_aligned
+    al32 = al.to(torch.float32)
+    assert al32.aligned.q.dtype == al32.warps.dtype == al32.rotations.dtype == torch.float32
+    assert torch.equal(al32.identity, al.identity) and len(al32) == len(al)
+    torch.testing.assert_close(al32.aligned.features(), al.aligned.features().float())
 
 
 def test_single_frame_sequence():

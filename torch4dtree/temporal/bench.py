@@ -72,7 +72,7 @@ def _best_of(fn: Callable[[], object], repeats: int) -> float:
 
 def benchmark_temporal(pairs: int = 1000, n_t: int = 32, k: int = 10, repeats: int = 5,
                        grid: Sequence[int] = (16, 32, 64), neighbourhoods: Sequence[int] = (3, 4, 6),
-                       refines: Sequence[int] = (0, 8), accuracy_pairs: int = 300) -> dict:
+                       refines: Sequence[int] = (0, 16), accuracy_pairs: int = 300) -> dict:
     """Speed of :func:`register_trajectories` (one pair, and batched) and warp recovery vs ``n_t`` and the DP lattice.
 
     Accuracy rows: mean / 95th percentile / max over pairs of the mean absolute warp error on ``[0, 1]``, the
