@@ -7,7 +7,9 @@ import json
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("what", choices=["curves", "trees"])
+    p.add_argument("what", choices=["curves", "trees", "4d"],
+                   help="curves: the DP engine vs fdasrsf; trees: Pheno4D tree registration vs the paper; "
+                        "4d: spatiotemporal registration of Pheno4D plants, temporal registration, 4D geodesics")
     p.add_argument("--json", action="store_true")
     p.add_argument("--pairs", type=int, default=1000, help="curve pairs in the batched measurement")
     p.add_argument("--points", type=int, default=100, help="points per curve")
@@ -18,6 +20,10 @@ def run(args: argparse.Namespace) -> int:
         from ..bench.curves import benchmark_curves
 
         result = benchmark_curves(pairs=args.pairs, T=args.points)
+    elif args.what == "4d":
+        from ..bench.fourd import benchmark_4d
+
+        result = benchmark_4d()
     else:
         from ..bench.trees import benchmark_trees
 

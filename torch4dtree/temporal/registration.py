@@ -25,7 +25,7 @@ from ..curves.srvf import interpolate_curve, inverse_srvf, srvf, srvf_sq_distanc
 
 __all__ = ["TemporalRegistration", "geodesic4d", "register_trajectories", "time_warp_trajectory"]
 
-# DP settings chosen by measurement (temporal/bench.py; 300 smooth random trajectories in R^10 at n_t = 32
+# DP settings chosen by measurement (bench/temporal.py; 300 smooth random trajectories in R^10 at n_t = 32
 # against copies warped by random_warp, strength 1 / 1.5). The lattice alone is coarse at n_t = 32: slopes up
 # to 4 leave a mean absolute warp error of 0.0095 / 0.018 (max 0.056 / 0.11), slopes up to 6 0.0064 / 0.0098
 # at twice the cost. Gauss-Newton refinement off the lattice brings every setting to 0.0005 / 0.0007 (max

@@ -2,7 +2,7 @@
 (identity accuracy on synthetic plants with ground truth, time on Pheno4D), and growth-clock recovery.
 
 Kept beside the code it measures until the lead moves it to ``torch4dtree/bench/temporal.py``. Every
-function returns a JSON-serialisable dict; ``python -m torch4dtree.temporal.bench [section ...]`` prints them.
+function returns a JSON-serialisable dict; ``python -m torch4dtree.bench.temporal [section ...]`` prints them.
 """
 
 from __future__ import annotations
@@ -23,9 +23,9 @@ from torch import Tensor
 from ..curves.rotation import optimal_rotation
 from ..curves.srvf import interpolate_curve, srvf, srvf_sq_distance
 from ..curves.warps import invert_warp, random_warp
-from .registration import register_trajectories, time_warp_trajectory
-from .trajectory import resample_trajectory
-from .within import AlignedSequence, identity_accuracy, register_sequence
+from ..temporal.registration import register_trajectories, time_warp_trajectory
+from ..temporal.trajectory import resample_trajectory
+from ..temporal.within import AlignedSequence, identity_accuracy, register_sequence
 
 __all__ = ["benchmark_growth_clocks", "benchmark_pheno4d_within", "benchmark_synthetic_within",
            "benchmark_temporal", "smooth_trajectories", "warped_trajectory_pairs"]
