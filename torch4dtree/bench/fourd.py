@@ -54,6 +54,7 @@ def benchmark_4d(root: str | Path | None = None, T: int = 64, source: str = "mat
             pairs = [register4d(a, b) for a, b in itertools.combinations(seqs, 2)]
             row["all_pairs"] = {"plants": len(plants), "pairs": len(pairs), "seconds": time.perf_counter() - t0,
                                 "lowered_spatial": sum(r.distance_after_spatial < r.distance_before for r in pairs),
+                                "kept_index_order": sum(r.kept_index_order for r in pairs),
                                 "lowered_temporal": sum(r.distance_after_temporal <= r.distance_after_spatial
                                                         for r in pairs),
                                 "median_distances": [statistics.median(getattr(r, f) for r in pairs) for f in (

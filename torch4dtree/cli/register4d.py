@@ -83,7 +83,8 @@ def run(args: argparse.Namespace) -> int:
         "distance_before": res.distance_before, "distance_after_spatial": res.distance_after_spatial,
         "distance_after_temporal": res.distance_after_temporal, "warp": [float(x) for x in res.warp],
         "seconds": seconds, "stage_seconds": res.seconds, "frames": [len(a), len(b)],
-        "slots": res.layout.num_slots, "components": res.pca.n_components_, "written": written,
+        "slots": res.layout.num_slots, "components": res.pca.n_components_,
+        "kept_index_order": res.kept_index_order, "written": written,
     }
     if args.json:
         print(json.dumps(summary))
