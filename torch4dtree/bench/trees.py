@@ -33,7 +33,7 @@ PAPER_TOMATO_SPATIAL_SECONDS = 270.0
 def default_data_root() -> Path:
     """``$TORCH4DTREE_PHENO4D`` if set, else ``<repo>/../shared/data/pheno4d`` (where the project keeps it)."""
     env = os.environ.get("TORCH4DTREE_PHENO4D")
-    return Path(env) if env else Path(__file__).resolve().parents[2] / "shared" / "data" / "pheno4d"
+    return Path(env) if env else Path(__file__).resolve().parents[3] / "shared" / "data" / "pheno4d"
 
 
 def _kind(plant: str) -> str:
