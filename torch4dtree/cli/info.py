@@ -68,7 +68,7 @@ def format_tables(sequences: list[dict]) -> list[str]:
     widths = [max(len(r[c]) for r in [header, *(row for rs in rows for row in rs)]) for c in range(len(COLUMNS))]
 
     def line(cells: tuple[str, ...]) -> str:
-        return "  " + "  ".join(f"{x:{a}{w}}" for x, (_, a), w in zip(cells, COLUMNS, widths))
+        return ("  " + "  ".join(f"{x:{a}{w}}" for x, (_, a), w in zip(cells, COLUMNS, widths))).rstrip()
 
     lines = []
     for s, rs in zip(sequences, rows):

@@ -14,6 +14,7 @@ from .options import UsageError, add_config_arguments, check_output_file, config
 FPS = 12.0
 FRAMES_PER_SCAN = 8
 ORBIT_FRAMES = 48  # one turn around a single tree: 4 s at 12 fps
+MAX_COLUMNS = 6  # a sequence picture wraps into rows of at most this many frames
 
 
 def _parse_size(text: str) -> tuple[int, int]:
@@ -125,14 +126,17 @@ def run(args: argparse.Namespace) -> int:
         if video:
             n = args.frames or (FRAMES_PER_SCAN * (len(seq) - 1) + 1)
             size = args.size or fit_size([seq], 512, **common)
-            frames = render_sequence(seq, n, size=size, caption=True, interpolate=args.interpolate, **common)
-            if args.title:
-                frames = np.stack([_compose(f[None, None], None, None, args.title) for f in frames])
+            frames = render_sequence(seq, n, size=size, interpolate=args.interpolate, **common)
+            labels = _time_labels(seq.times, n)
+            frames = np.stack([_compose(f[None, None], None, None, args.title or seq.name, lab)
+                               for f, lab in zip(frames, labels)])
             described = f"{n} frames from {format_time(float(seq.times[0]))} to {float(seq.times[-1]):g}"
         else:
             cols = [format_time(t) for t in seq.times.tolist()]
             size = args.size or fit_size([seq], 256, **common)
-            frames = render_grid([seq], col_labels=cols, title=args.title or seq.name, size=size, **common)
+            per_row = -(-len(seq) // -(-len(seq) // MAX_COLUMNS))  # balanced rows of at most MAX_COLUMNS
+            frames = render_grid([seq], col_labels=cols, title=args.title or seq.name, size=size, wrap=per_row,
+                                 **common)
     elif path.is_dir():
         seqs = [ls.sequence for ls in read_dataset(path, load)]
         names = [s.name for s in seqs]

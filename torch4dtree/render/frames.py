@@ -533,6 +533,7 @@ def render_grid(
     options: RenderOptions | None = None,
     frame_labels: Sequence[str] | None = None,
     interpolate: bool = False,
+    wrap: int | None = None,
     **overrides: Any,
 ) -> np.ndarray:
     """Several trees / 4D trees side by side (geodesics, modes of variation, samples), one shared camera.
@@ -542,7 +543,8 @@ def render_grid(
 
     Image (``video=False``): one row per input, one column per time; ``n_cols`` samples every row
     at that many evenly spaced normalised times (default: each row's frames in order, short rows
-    padded with white). ``col_labels`` go above the columns, ``row_labels`` left of the rows.
+    padded with white). ``col_labels`` go above the columns, ``row_labels`` left of the rows. ``wrap``
+    lays a single row out over several, at most ``wrap`` cells wide, each cell under its column label.
 
     Video (``video=True``): one cell per input laid out ``n_cols`` cells wide (default: up to 4),
     each cell animating its row over ``n_frames`` video frames (default: the longest row's length)
@@ -590,11 +592,19 @@ def render_grid(
             frames = np.concatenate([frames, np.full((n - len(w), H, W, 3), 255, np.uint8)])
         cells.append(frames)
     if not video:
+        if wrap is not None and len(cells) == 1 and n > wrap:
+            c = cells[0]
+            if col_labels is not None:
+                c = np.concatenate([_label_strip(c[k:k + 1], str(col_labels[k])) for k in range(n)])
+            R = -(-n // wrap)
+            c = np.concatenate([c, np.full((R * wrap - n, *c.shape[1:]), 255, np.uint8)])
+            return _compose(c.reshape(R, wrap, *c.shape[1:]), None, None, title)
         return _compose(np.stack(cells), row_labels, col_labels, title)
     per_row = n_cols or min(len(rows), 4)
     n_grid_rows = -(-len(rows) // per_row)
-    if row_labels is not None:
-        cells = [np.stack([_draw_caption(f, str(lab)) for f in c]) for c, lab in zip(cells, row_labels)]
+    if row_labels is not None:  # a label strip above each cell, not over the plant
+        cells = [_label_strip(c, str(lab)) for c, lab in zip(cells, row_labels)]
+        H = cells[0].shape[1]
     blank = np.full((n, H, W, 3), 255, np.uint8)
     cells += [blank] * (n_grid_rows * per_row - len(cells))
     tiles = np.stack(cells).reshape(n_grid_rows, per_row, n, H, W, 3)
@@ -698,6 +708,26 @@ def _fit_text(text: str, width: int, px: int, min_px: int) -> tuple[list[str], A
     return [_shorten(ln, width, font) for ln in out], font
 
 
+def _text_px(H: int, W: int) -> int:
+    """Font size in pixels for the labels of ``H x W`` cells (readable, not dominating)."""
+    return max(11, min(32, max(H, W) // 14))
+
+
+def _label_strip(frames: np.ndarray, text: str) -> np.ndarray:
+    """``(n, H, W, 3)`` frames with a white strip on top holding ``text``, centred (shrunk or cut to fit)
+    -> ``(n, H + h, W, 3)``."""
+    from PIL import Image, ImageDraw
+
+    n, H, W, _ = frames.shape
+    px = _text_px(H, W)
+    lines, font = _fit_text(text, W - px // 2, px, max(8, px * 2 // 3))
+    h = _line_height(font) + px // 2
+    strip = Image.new("RGB", (W, h), (255, 255, 255))
+    ImageDraw.Draw(strip).text(((W - _text_width(lines[0], font)) // 2, px // 4), lines[0], fill=TEXT_INK, font=font)
+    top = np.broadcast_to(np.asarray(strip), (n, h, W, 3))
+    return np.concatenate([top, frames], axis=1)
+
+
 def _draw_caption(frame: np.ndarray, text: str) -> np.ndarray:
     """The frame with ``text`` in its top-left corner (shrunk or cut to fit the frame's width)."""
     from PIL import Image, ImageDraw
@@ -718,7 +748,7 @@ def _compose(
     from PIL import Image, ImageDraw
 
     R, C, H, W, _ = cells.shape
-    px = max(11, min(32, H // 14))
+    px = _text_px(H, W)
     font = _font(px)
     pad = px // 2
     left = max((_text_width(str(t), font) for t in row_labels), default=0) + 2 * pad if row_labels else 0
@@ -861,10 +891,13 @@ def save_video(path: str | Path, frames: np.ndarray, fps: float = 4.0, overwrite
             macro_block_size=1, quality=None, ffmpeg_log_level="error",
             output_params=["-crf", "18", "-preset", "veryfast", "-movflags", "+faststart"],
         )
-        writer.send(None)
-        for f in arr:
-            writer.send(f.tobytes())
-        writer.close()
+        try:
+            writer.send(None)
+            for f in arr:
+                writer.send(f.tobytes())
+            writer.close()
+        except (OSError, RuntimeError) as e:  # ffmpeg's messages name the hidden temporary file
+            raise type(e)(f"{path}: cannot encode the video: {str(e).replace(str(tmp), str(path))}") from None
         publish_file(tmp, path, overwrite)
     finally:
         tmp.unlink(missing_ok=True)
