@@ -64,7 +64,7 @@ def _title(args: argparse.Namespace, res: Any) -> str:
 def _save_correspondence_picture(res: Any, args: argparse.Namespace) -> Path:
     """The geodesic from the registered moving tree to the reference, a branch's colour = its common slot, so
     matched branches share a colour along the path (a row of trees, or an animation for .gif / .mp4)."""
-    from ..render import VIDEO_SUFFIXES, render_grid, save_image, save_video
+    from ..render import VIDEO_SUFFIXES, fit_size, render_grid, save_image, save_video
     from ..trees.geodesic import geodesic
 
     image: Path = args.image
@@ -72,15 +72,15 @@ def _save_correspondence_picture(res: Any, args: argparse.Namespace) -> Path:
         # a smooth morph: 2 s there, at 12 frames per second, whatever --steps is
         n = 24
         path = geodesic(res, n)
-        labels = [f"t = {k / (n - 1):.2f}" for k in range(n)]
-        frames = render_grid([path], video=True, title=_title(args, res), color="label", size=(640, 512),
+        labels = [f"geodesic t = {k / (n - 1):.2f}" for k in range(n)]
+        frames = render_grid([path], video=True, title=_title(args, res), color="label", size=fit_size([path], 640),
                              frame_labels=labels)
         return save_video(image, frames, fps=12, overwrite=args.overwrite)
     steps = args.steps
     path = geodesic(res, steps)
     cols = ["moving (registered)"] + [f"t = {k / (steps - 1):.2f}" for k in range(1, steps - 1)] + ["reference"]
-    return save_image(image, render_grid([path], col_labels=cols, title=_title(args, res), color="label"),
-                      overwrite=args.overwrite)
+    picture = render_grid([path], col_labels=cols, title=_title(args, res), color="label", size=fit_size([path], 384))
+    return save_image(image, picture, overwrite=args.overwrite)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -666,7 +666,8 @@ def _note(text: str) -> None:
 class _CompileNotice(numba.core.event.Listener if HAVE_NUMBA else object):  # type: ignore[misc]
     """Says once, on stderr, that the kernels are being compiled (a numba cache miss), and how long it took."""
 
-    def __init__(self) -> None:
+    def __init__(self, hint: bool = True) -> None:
+        self.hint = hint  # point to ``torch4dtree warmup`` (not when that is what runs)
         self.depth = 0
         self.t0 = 0.0
         self.seconds: float | None = None
@@ -674,8 +675,9 @@ class _CompileNotice(numba.core.event.Listener if HAVE_NUMBA else object):  # ty
     def on_start(self, event: object) -> None:
         if self.depth == 0 and self.seconds is None:
             self.t0 = time.perf_counter()
+            hint = "; `torch4dtree warmup` does it ahead of time" if self.hint else ""
             _note(f"compiling the registration kernels, once after installing or updating ({COMPILE_ESTIMATE}; "
-                  f"cached for later runs; `torch4dtree warmup` does it ahead of time)...")
+                  f"cached for later runs{hint})...")
         self.depth += 1
 
     def on_end(self, event: object) -> None:
@@ -685,7 +687,7 @@ class _CompileNotice(numba.core.event.Listener if HAVE_NUMBA else object):  # ty
             _note(f"kernels compiled in {self.seconds:.0f} s")
 
 
-def _first_call(*args: object) -> float | None:
+def _first_call(*args: object, hint: bool = True) -> float | None:
     """The first kernel call of the process, listening for a compile (instead of a load from the disk cache).
     Returns the compile time in seconds, or None if the kernels came from the cache."""
     global _READY
@@ -693,7 +695,7 @@ def _first_call(*args: object) -> float | None:
         if _READY:
             _nb_pairs(*args)
             return None
-        notice = _CompileNotice()
+        notice = _CompileNotice(hint)
         with numba.core.event.install_listener("numba:compile", notice):
             _nb_pairs(*args)
         _READY = True
@@ -741,7 +743,8 @@ def warm_up() -> float | None:
     A, Bs = _step_arrays(2)
     outs = (np.empty(0), np.empty(0), np.empty((0, 8)), np.empty((0, 3, 3)), np.empty((0, 8, 3)), np.empty((0, 7, 3)))
     # the same argument types as run_pairs, so this compiles (or loads) the one signature real calls use
-    return _first_call(True, z, z, False, A, Bs, A, Bs, np.zeros(9, np.int64), np.zeros(3), 0.0, 0, 1, *outs)
+    return _first_call(True, z, z, False, A, Bs, A, Bs, np.zeros(9, np.int64), np.zeros(3), 0.0, 0, 1, *outs,
+                       hint=False)
 
 
 def _dp_numba(q1: Tensor, q2: Tensor, n: int, lo: np.ndarray, hi: np.ndarray) -> tuple[Tensor, Tensor]:
