@@ -202,7 +202,7 @@ def test_grid_image_and_video():
     assert img.ndim == 3 and img.shape[0] > 2 * 64 and img.shape[1] > 3 * 64
     assert (img[-64:, -64:] == 255).all()  # the short row is padded with a white cell
     vid = render_grid([seq, batch], row_labels=["grow", "pair"], video=True, n_frames=5, size=64)
-    assert vid.shape == (5, 64, 128, 3)
+    assert vid.shape[0] == 5 and vid.shape[2] == 128 and 64 < vid.shape[1] < 2 * 64  # a label strip above the cells
     with pytest.raises(ValueError):
         render_grid([seq], col_labels=["only one"], size=64)
 
@@ -357,19 +357,19 @@ def test_video_frames_carry_their_labels_in_the_header():
 def test_fitted_panels_are_filled():
     from torch4dtree.render import fit_size
 
-    wide = Trees.from_branches([[line([0, 0, 0], [0, 0, 2]), line([0, 0, 2], [8, 0, 3]), line([0, 0, 2], [-8, 0, 3])]],
+    wide = Trees.from_branches([[line([0, 0, 0], [0, 0, 2]), line([0, 0, 2], [3, 0, 3]), line([0, 0, 2], [-3, 0, 3])]],
                                [[-1, 0, 0]], T=16)
-    tall = Trees.from_branches([[line([0, 0, 0], [0, 0, 10]), line([0, 0, 5], [1.5, 0, 6])]], [[-1, 0]], T=16)
+    tall = Trees.from_branches([[line([0, 0, 0], [0, 0, 10]), line([0, 0, 5], [4, 0, 6])]], [[-1, 0]], T=16)
     for tree, landscape in ((wide, True), (tall, False)):
         W, H = fit_size([tree], 128)
         assert max(W, H) == 128 and (W > H) == landscape and W % 2 == H % 2 == 0
         mask = plant_mask(render_trees(tree, size=(W, H))[0])
         ys, xs = np.nonzero(mask)
-        fill_x, fill_y = (xs.ptp() + 1) / W, (ys.ptp() + 1) / H
+        fill_x, fill_y = (np.ptp(xs) + 1) / W, (np.ptp(ys) + 1) / H
         assert min(fill_x, fill_y) > 0.5 and max(fill_x, fill_y) > 0.8, (fill_x, fill_y)
         square = plant_mask(render_trees(tree, size=128)[0])
         ys, xs = np.nonzero(square)
-        assert min((xs.ptp() + 1), (ys.ptp() + 1)) / 128 < 0.5  # what the square panel wasted
+        assert min((np.ptp(xs) + 1), (np.ptp(ys) + 1)) / 128 < 0.5  # what the square panel wasted
 
 
 def test_interpolated_frames_between_scans():
