@@ -8,7 +8,10 @@ Run from the benchmark venv (fdasrsf is GPL and not a dependency of the package)
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
+import subprocess
+import sys
 
 from torch4dtree.bench.curves import benchmark_curves
 
@@ -21,6 +24,18 @@ def fmt(x, unit: str = "") -> str:
     return f"{x:.4g}"
 
 
+@contextlib.contextmanager
+def busy_core(on: bool):
+    """With ``on``, a CPU-bound process spins beside the measurement (a machine whose other core is busy)."""
+    proc = subprocess.Popen([sys.executable, "-c", "while True: pass"]) if on else None
+    try:
+        yield
+    finally:
+        if proc is not None:
+            proc.kill()
+            proc.wait()
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--pairs", type=int, default=1000)
@@ -28,13 +43,17 @@ def main() -> None:
     p.add_argument("--fdasrsf-pairs", type=int, default=40)
     p.add_argument("--single-reps", type=int, default=30)
     p.add_argument("--json", action="store_true")
+    p.add_argument("--busy", action="store_true", help="run a CPU-bound process on another core meanwhile")
     a = p.parse_args()
-    r = benchmark_curves(pairs=a.pairs, T=a.T, fdasrsf_pairs=a.fdasrsf_pairs, single_reps=a.single_reps)
+    with busy_core(a.busy):
+        r = benchmark_curves(pairs=a.pairs, T=a.T, fdasrsf_pairs=a.fdasrsf_pairs, single_reps=a.single_reps)
+    r["busy_core"] = a.busy
     if a.json:
         print(json.dumps(r, indent=2))
         return
     print(f"curve registration, so3 + DP, T={r['T']}, batch {r['pairs']} pairs; numba threads "
-          f"{r['numba_threads']}; numba first call (compile or cache load) {r['numba_first_call_s']:.1f} s")
+          f"{r['numba_threads']}; numba first call (compile or cache load) {r['numba_first_call_s']:.1f} s"
+          + ("; a CPU-bound process on another core" if a.busy else ""))
     head = f"{'pairs':10s} {'ours 1 pair':>12s} {'ours batched':>13s} {'fdasrsf':>11s} {'speedup':>8s} " \
            f"{'batched x':>9s} {'E ours/E fda':>12s} {'ours<=fda':>9s} {'dist ours':>9s} {'dist fda':>9s}"
     print(head)

@@ -31,12 +31,40 @@ def test_main_command_uses_only_existing_subcommands():
         assert used in choices, used
 
 
-def test_readme_python_example_runs(tmp_path, monkeypatch):
-    from conftest import pheno4d
+def python_example() -> str:
+    return next(b for b in re.findall(r"```python\n(.*?)\n```", (ROOT / "README.md").read_text(), flags=re.S))
+
+
+def test_readme_python_example_runs_and_leaves_no_files(tmp_path, monkeypatch, capsys):
+    from conftest import PHENO4D, pheno4d
 
     pheno4d("swc", "Tomato_3")
-    code = next(b for b in re.findall(r"```python\n(.*?)\n```", (ROOT / "README.md").read_text(), flags=re.S))
-    code = code.replace('"../shared/data/pheno4d/', f'"{ROOT.parent}/shared/data/pheno4d/')
+    code = python_example().replace('"../shared/data/pheno4d/', f'"{PHENO4D}/')
+    before = sorted(p.name for p in ROOT.iterdir())
     monkeypatch.chdir(tmp_path)
     exec(compile(code, "README.md", "exec"), {})
-    assert (tmp_path / "morph.png").stat().st_size > 1000
+    out = capsys.readouterr().out
+    assert "morph.png" in out  # it did write the picture (into a folder it removed)
+    assert list(tmp_path.iterdir()) == [] and sorted(p.name for p in ROOT.iterdir()) == before
+
+
+def test_readme_python_example_imports_only_what_it_uses():
+    import ast
+
+    tree = ast.parse(python_example())
+    imported = {a.asname or a.name.split(".")[0] for node in ast.walk(tree)
+                if isinstance(node, (ast.Import, ast.ImportFrom)) for a in node.names}
+    used = {n.id for n in ast.walk(tree) if isinstance(n, ast.Name)}
+    assert imported <= used, imported - used
+
+
+def test_the_real_data_location_is_documented_where_it_is_read(monkeypatch, tmp_path):
+    from torch4dtree.bench.trees import default_data_root
+
+    readme = (ROOT / "README.md").read_text()
+    assert "TORCH4DTREE_PHENO4D" in readme and "github.com/Tahmina979/4Dtreeshape_project" in readme
+    assert "TORCH4DTREE_PHENO4D" in (ROOT / "tests" / "conftest.py").read_text()
+    monkeypatch.delenv("TORCH4DTREE_PHENO4D", raising=False)
+    assert default_data_root() == ROOT.parent / "shared" / "data" / "pheno4d"  # "../shared/data/pheno4d"
+    monkeypatch.setenv("TORCH4DTREE_PHENO4D", str(tmp_path))
+    assert default_data_root() == tmp_path

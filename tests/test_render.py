@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import argparse
 import colorsys
 import os
 import subprocess
@@ -19,8 +18,6 @@ imageio = pytest.importorskip("imageio.v2")
 from conftest import PHENO4D, pheno4d  # noqa: E402
 
 from torch4dtree import Trees, TreeSequence  # noqa: E402
-from torch4dtree.cli.render import add_arguments as add_render_arguments  # noqa: E402
-from torch4dtree.cli.render import run as run_render  # noqa: E402
 from torch4dtree.io import LoadOptions, read_sequence  # noqa: E402
 from torch4dtree.render import (  # noqa: E402
     GL_PACKAGES,
@@ -205,7 +202,7 @@ def test_grid_image_and_video():
     assert img.ndim == 3 and img.shape[0] > 2 * 64 and img.shape[1] > 3 * 64
     assert (img[-64:, -64:] == 255).all()  # the short row is padded with a white cell
     vid = render_grid([seq, batch], row_labels=["grow", "pair"], video=True, n_frames=5, size=64)
-    assert vid.shape == (5, 64, 128, 3)
+    assert vid.shape[0] == 5 and vid.shape[2] == 128 and 64 < vid.shape[1] < 2 * 64  # a label strip above the cells
     with pytest.raises(ValueError):
         render_grid([seq], col_labels=["only one"], size=64)
 
@@ -232,9 +229,9 @@ def test_saving_refuses_to_overwrite(tmp_path: Path):
 
 # ------------------------------------------------------------------------------------------- CLI
 def cli(*argv: str) -> int:
-    parser = argparse.ArgumentParser()
-    add_render_arguments(parser)
-    return run_render(parser.parse_args(list(argv)))
+    from torch4dtree.cli import main
+
+    return main(["render", *argv])
 
 
 def test_cli_tree_sequence_and_dataset(tmp_path: Path, capsys):
@@ -243,11 +240,12 @@ def test_cli_tree_sequence_and_dataset(tmp_path: Path, capsys):
     out = tmp_path / "tree.png"
     assert cli(str(tree_file), "--out", str(out), "--size", "96", "--T", "16") == 0
     assert imageio.imread(out).shape == (96, 96, 3)
-    assert cli(str(tree_file), "--out", str(out), "--size", "96") == 1  # refuses to overwrite
+    assert cli(str(tree_file), "--out", str(out), "--size", "96") == 2  # refuses to overwrite
     assert "exists" in capsys.readouterr().err
     assert cli(str(tree_file), "--out", str(out), "--size", "96", "--overwrite") == 0
     gif = tmp_path / "seq.gif"
-    assert cli(str(folder), "--out", str(gif), "--size", "80", "--frames", "3", "--repair", "--T", "16") == 0
+    assert cli(str(folder), "--out", str(gif), "--size", "80", "--frames", "3", "--repair", "--T", "16",
+               "--no-interpolate") == 0
     assert len(imageio.mimread(gif)) == 3
     row = tmp_path / "row.png"
     assert cli(str(folder), "--out", str(row), "--size", "64", "--repair", "--T", "16") == 0
@@ -260,7 +258,7 @@ def test_cli_tree_sequence_and_dataset(tmp_path: Path, capsys):
     assert cli(str(data), "--out", str(grid), "--size", "48", "--view", "side", "--repair", "--T", "16") == 0
     h, w, _ = imageio.imread(grid).shape
     assert h >= 2 * 48 and w > 7 * 48
-    assert cli(str(tmp_path / "nothing"), "--out", str(tmp_path / "x.png")) == 1
+    assert cli(str(tmp_path / "nothing"), "--out", str(tmp_path / "x.png")) == 2
 
 
 def test_missing_egl_gives_a_clear_error():
@@ -319,3 +317,99 @@ def test_register_picture_colours_matched_branches_alike(tmp_path: Path):
     counts = [[hue_count(h, LABEL_PALETTE[k], tol=4) for k in (1, 2, 3)] for h in halves]
     assert int(np.argmax(counts[0])) == int(np.argmax(counts[1])) and min(max(c) for c in counts) > 20, counts
     assert main(["register", str(paths[0]), str(paths[1]), "--T", str(T), "--image", str(out)]) == 2  # no overwrite
+
+
+# ------------------------------------------------------------------------------- what a user looks at
+def header_ink(img: np.ndarray, top: int) -> np.ndarray:
+    """``(top, W)`` dark (text) pixels of the band above the cells."""
+    return (img[:top] < 128).all(-1)
+
+
+def test_long_titles_fit_and_keep_every_line():
+    from torch4dtree.render.frames import _compose
+
+    cells = np.full((1, 2, 64, 64, 3), 200, np.uint8)
+    title = "T03_0321_a_seg_with_a_long_name  ->  T03_0324_a_seg\ndistance 38.6 (index order)  ->  28.0 (registered)"
+    img = _compose(cells, None, ["moving (registered)", "reference"], title)
+    top = img.shape[0] - 64
+    ink = header_ink(img, top)
+    cols = np.nonzero(ink.any(0))[0]
+    assert cols.min() > 0 and cols.max() < img.shape[1] - 1, "text cut at an edge"
+    rows = np.nonzero(ink.any(1))[0]
+    gaps = np.diff(rows) > 1
+    assert gaps.sum() >= 2, "expected two title lines and a column-label line"  # separated by blank rows
+    one_line = _compose(cells, None, None, "short")
+    assert one_line.shape[0] < img.shape[0]
+
+
+def test_video_frames_carry_their_labels_in_the_header():
+    seq = growing_sequence()
+    frames = render_grid([seq], row_labels=["grow"], video=True, n_frames=3, size=64, frame_labels=["a", "bb", "a"])
+    plain = render_grid([seq], video=True, n_frames=3, size=64)
+    H = plain.shape[1]
+    assert frames.shape[1] > H and np.array_equal(frames[:, -H:], plain)  # labels above the plant, not over it
+    top = frames.shape[1] - H
+    assert np.array_equal(frames[0, :top], frames[2, :top]) and not np.array_equal(frames[0, :top], frames[1, :top])
+    with pytest.raises(ValueError, match="one label per frame"):
+        render_grid([seq], video=True, n_frames=3, size=64, frame_labels=["a"])
+
+
+def test_fitted_panels_are_filled():
+    from torch4dtree.render import fit_size
+
+    wide = Trees.from_branches([[line([0, 0, 0], [0, 0, 2]), line([0, 0, 2], [3, 0, 3]), line([0, 0, 2], [-3, 0, 3])]],
+                               [[-1, 0, 0]], T=16)
+    tall = Trees.from_branches([[line([0, 0, 0], [0, 0, 10]), line([0, 0, 5], [4, 0, 6])]], [[-1, 0]], T=16)
+    for tree, landscape in ((wide, True), (tall, False)):
+        W, H = fit_size([tree], 128)
+        assert max(W, H) == 128 and (W > H) == landscape and W % 2 == H % 2 == 0
+        mask = plant_mask(render_trees(tree, size=(W, H))[0])
+        ys, xs = np.nonzero(mask)
+        fill_x, fill_y = (np.ptp(xs) + 1) / W, (np.ptp(ys) + 1) / H
+        assert min(fill_x, fill_y) > 0.5 and max(fill_x, fill_y) > 0.8, (fill_x, fill_y)
+        square = plant_mask(render_trees(tree, size=128)[0])
+        ys, xs = np.nonzero(square)
+        assert min((np.ptp(xs) + 1), (np.ptp(ys) + 1)) / 128 < 0.5  # what the square panel wasted
+
+
+def test_interpolated_frames_between_scans():
+    from torch4dtree.render.interpolate import interpolate_sequence
+
+    seq = growing_sequence()
+    labels = torch.cat([torch.arange(n) + 10 for n in seq.frames.num_branches.tolist()])
+    seq = TreeSequence(Trees(seq.frames.points.double(), seq.frames.parent, seq.frames.s.double(),
+                             seq.frames.num_branches, labels), seq.times, seq.name)
+    t = seq.times.double()
+    times = torch.tensor([t[0], 0.5, t[1], 2.0, 2.001, t[3]], dtype=torch.float64)
+    out = interpolate_sequence(seq, times)
+    assert out.num_trees == len(times)
+    for k, j in ((0, 0), (2, 1), (5, 3)):  # at a scan time, the scan itself (its registered copy)
+        assert torch.allclose(out[k].total_length(), seq.frames[j].total_length(), rtol=1e-9)
+        assert torch.allclose(out[k].height(), seq.frames[j].height(), rtol=1e-9)
+        assert sorted(out[k].label.tolist()) == sorted(seq.frames[j].label.tolist())
+    # between scans: sizes in between, labels from the two scans, and continuous in time
+    between = out[1].total_length().item()
+    assert seq.frames[0].total_length().item() < between < seq.frames[1].total_length().item()
+    assert set(out[3].label.tolist()) <= set(seq.frames[1].label.tolist()) | set(seq.frames[2].label.tolist())
+    assert abs(out[3].height().item() - out[4].height().item()) < 1e-2
+
+
+def test_cli_videos_have_a_time_label_and_interpolated_frames(tmp_path: Path, capsys):
+    from torch4dtree.cli import main
+    from torch4dtree.io import write_swc
+
+    folder = tmp_path / "grow"
+    folder.mkdir()
+    seq = growing_sequence(3)
+    for k, tree in enumerate(seq.frames.split()):
+        write_swc(folder / f"frame_{int(seq.times[k])}.swc", tree.to(torch.float64))
+    out = tmp_path / "grow.gif"
+    assert main(["render", str(folder), "--out", str(out), "--size", "64", "--T", "16"]) == 0
+    assert "wrote" in capsys.readouterr().out
+    frames = np.stack(imageio.mimread(out))[..., :3]
+    assert len(frames) == 8 * 2 + 1  # 8 frames per interval between scans, evenly spaced in time
+    top = frames.shape[1] - 64
+    headers = {frames[k, :top].tobytes() for k in range(len(frames))}
+    assert len(headers) == len(frames)  # every frame names its own time
+    cells = plant_mask(frames[:, top:])
+    assert len({c.tobytes() for c in cells}) > 2 * 3  # the plant moves between scans, not only at them

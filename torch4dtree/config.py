@@ -1,22 +1,32 @@
 """Settings shared by the commands, as a dataclass that a small JSON file can override.
 
 ``configs/`` holds one file per kind of data (tomato, maize, neurons). Unknown keys are errors,
-so a typo never silently falls back to a default.
+so a typo never silently falls back to a default. This module imports neither torch nor the tree
+code at import time, so the command line can build its help without them.
 """
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .trees.structures import DEFAULT_T, TreeError
-
 ROTATIONS = ("none", "vertical", "so3")
 # the settings that decide how files become trees (the fields of io.LoadOptions that a config sets)
 LOAD_SETTINGS = ("T", "max_layers", "min_branch_length", "repair", "hierarchy")
+# = trees.skeleton.HIERARCHIES (literal for the same reason as DEFAULT_T; tested)
+HIERARCHIES = ("straightest", "heaviest", "longest")
+# = trees.structures.DEFAULT_T (kept literal so that importing this module never imports torch; tested)
+DEFAULT_T = 64
+
+
+def _error(message: str) -> ValueError:
+    """A :class:`~torch4dtree.trees.structures.TreeError` (imported only when there is an error to raise)."""
+    from .trees.structures import TreeError
+
+    return TreeError(message)
+
 
 
 @dataclass
@@ -27,7 +37,7 @@ class Config:
     max_layers: int | None = None
     min_branch_length: float = 0.0
     repair: bool = False
-    hierarchy: str = "straightest"  # skeleton -> branches rule (torch4dtree.trees.skeleton.HIERARCHIES)
+    hierarchy: str = "straightest"  # skeleton -> branches rule (torch4dtree.trees.skeleton)
     rotation: str = "none"
     lambdas: tuple[float, float, float] = (1.0, 1.0, 1.0)  # (lm, ls, lp)
     neighbourhood: int = 4  # DP slopes up to 4: fastest and most cycle-consistent on Pheno4D at T = 64
@@ -35,18 +45,16 @@ class Config:
 
     def __post_init__(self) -> None:
         if self.T < 2:
-            raise TreeError(f"T must be at least 2, got {self.T}")
-        from .trees.skeleton import HIERARCHIES
-
+            raise _error(f"T must be at least 2, got {self.T}")
         if self.hierarchy not in HIERARCHIES:
-            raise TreeError(f"hierarchy must be one of {HIERARCHIES}, got {self.hierarchy!r}")
+            raise _error(f"hierarchy must be one of {HIERARCHIES}, got {self.hierarchy!r}")
         if self.rotation not in ROTATIONS:
-            raise TreeError(f"rotation must be one of {ROTATIONS}, got {self.rotation!r}")
+            raise _error(f"rotation must be one of {ROTATIONS}, got {self.rotation!r}")
         self.lambdas = tuple(float(x) for x in self.lambdas)  # type: ignore[assignment]
         if len(self.lambdas) != 3 or min(self.lambdas) < 0 or min(self.lambdas[:2]) <= 0:
-            raise TreeError(f"lambdas must be (lm > 0, ls > 0, lp >= 0), got {self.lambdas}")
+            raise _error(f"lambdas must be (lm > 0, ls > 0, lp >= 0), got {self.lambdas}")
         if self.neighbourhood < 1:
-            raise TreeError(f"neighbourhood must be at least 1, got {self.neighbourhood}")
+            raise _error(f"neighbourhood must be at least 1, got {self.neighbourhood}")
 
     def load_options(self):  # noqa: ANN201 - io.LoadOptions (io imports structures; keep this module light)
         """The :class:`~torch4dtree.io.LoadOptions` with every setting the two share taken from here."""
@@ -64,47 +72,14 @@ def load_config(path: str | Path) -> Config:
     try:
         raw = json.loads(path.read_text())
     except (OSError, ValueError) as e:
-        raise TreeError(f"{path}: cannot read the config ({e})") from None
+        raise _error(f"{path}: cannot read the config ({e})") from None
     if not isinstance(raw, dict):
-        raise TreeError(f"{path}: a config is a JSON object of settings")
+        raise _error(f"{path}: a config is a JSON object of settings")
     known = {f.name for f in dataclasses.fields(Config)}
     unknown = sorted(set(raw) - known)
     if unknown:
-        raise TreeError(f"{path}: unknown setting(s) {unknown}; known: {sorted(known)}")
+        raise _error(f"{path}: unknown setting(s) {unknown}; known: {sorted(known)}")
     try:
         return Config(**raw)
-    except TreeError as e:
-        raise TreeError(f"{path}: {e}") from None
-
-
-def add_config_arguments(parser: argparse.ArgumentParser, registration: bool = False) -> None:
-    """``--config FILE`` and the flags that override it: the loading settings, and with ``registration``
-    also ``--rotation``, ``--lambdas`` and ``--neighbourhood``. Every flag defaults to None (= not given)."""
-    parser.add_argument("--config", default=None, help="a JSON settings file (see configs/); flags given override it")
-    parser.add_argument("--T", type=int, default=None, help=f"points per branch after resampling (default {DEFAULT_T})")
-    parser.add_argument("--max-layers", type=int, default=None, help="keep at most this many branch layers")
-    parser.add_argument("--min-branch-length", type=float, default=None,
-                        help="drop SWC side branches shorter than this")
-    parser.add_argument("--repair", action="store_true", default=None,
-                        help="mend SWC cycles / parts cut off from the root (warns)")
-    parser.add_argument("--hierarchy", choices=("straightest", "heaviest", "longest"), default=None,
-                        help="which child continues a branch at an SWC branch point (default straightest: stable as "
-                             "plants grow; longest = the paper's longest-path rule)")
-    if registration:
-        parser.add_argument("--rotation", choices=ROTATIONS, default=None,
-                            help="global rotation to optimise (default none: the scans share a frame)")
-        parser.add_argument("--lambdas", type=float, nargs=3, default=None, metavar=("LM", "LS", "LP"),
-                            help="metric weights of main branch, subtrees, bifurcation parameters (default 1 1 1)")
-        parser.add_argument("--neighbourhood", type=int, default=None,
-                            help="largest DP slope (default 4; 6 for strongly non-uniform warps)")
-
-
-def config_from_args(args: argparse.Namespace) -> Config:
-    """The :class:`Config` of ``--config`` (or the defaults) with the flags given on the command line on top."""
-    config = load_config(args.config) if getattr(args, "config", None) else Config()
-    names = [f.name for f in dataclasses.fields(Config)]
-    given = {name: getattr(args, name) for name in names if getattr(args, name, None) is not None}
-    try:
-        return dataclasses.replace(config, **given)
-    except TreeError as e:
-        raise TreeError(f"command line: {e}") from None
+    except (TypeError, ValueError) as e:  # TreeError is a ValueError; TypeError: a value of the wrong kind
+        raise _error(f"{path}: {e}") from None

@@ -4,30 +4,58 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
+from pathlib import Path
+
+from .options import UsageError, int_at_least, positive_int
+
+# where the real data comes from, for the message when it is missing
+PHENO4D_HELP = ("The Pheno4D skeletons are not part of this repository: they are published in the dataset/ "
+                "folder of the paper's reference code (https://github.com/Tahmina979/4Dtreeshape_project). Put "
+                "the plant folders of SWC files under DIR/swc/ (e.g. DIR/swc/Tomato_3/T03_0305_a_seg.swc) and "
+                "point --data or $TORCH4DTREE_PHENO4D at DIR (default: ../shared/data/pheno4d beside the "
+                "repository).")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("what", choices=["curves", "trees", "4d"],
-                   help="curves: the DP engine vs fdasrsf; trees: Pheno4D tree registration vs the paper; "
+                   help="curves: curve registration vs fdasrsf (random, helix and, if present, Pheno4D curves); "
+                        "trees: all consecutive-day Pheno4D pairs vs the paper (needs the Pheno4D skeletons); "
                         "4d: spatiotemporal registration of Pheno4D plants, temporal registration, 4D geodesics")
-    p.add_argument("--json", action="store_true")
-    p.add_argument("--pairs", type=int, default=1000, help="curve pairs in the batched measurement")
-    p.add_argument("--points", type=int, default=100, help="points per curve")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--pairs", type=positive_int, default=1000, metavar="N",
+                   help="curves: pairs in the batched measurement (default: %(default)s)")
+    p.add_argument("--points", type=int_at_least(4), default=100, metavar="T",
+                   help="curves: points per curve (default: %(default)s)")
+    p.add_argument("--data", type=Path, default=None, metavar="DIR",
+                   help="the Pheno4D folder holding swc/ (default: $TORCH4DTREE_PHENO4D, else "
+                        "../shared/data/pheno4d beside the repository)")
+
+
+def _data_root(args: argparse.Namespace) -> Path:
+    from ..bench.trees import default_data_root
+
+    return args.data if args.data is not None else default_data_root()
 
 
 def run(args: argparse.Namespace) -> int:
+    root = _data_root(args)
+    if args.what in ("trees", "4d") and not (root / "swc").is_dir():
+        source = "--data" if args.data is not None else (
+            "$TORCH4DTREE_PHENO4D" if os.environ.get("TORCH4DTREE_PHENO4D") else "the default location")
+        raise UsageError(f"no Pheno4D skeletons at {root / 'swc'} ({source}). {PHENO4D_HELP}")
     if args.what == "curves":
         from ..bench.curves import benchmark_curves
 
-        result = benchmark_curves(pairs=args.pairs, T=args.points)
+        result = benchmark_curves(pairs=args.pairs, T=args.points, pheno4d=root / "swc")
     elif args.what == "4d":
         from ..bench.fourd import benchmark_4d
 
-        result = benchmark_4d()
+        result = benchmark_4d(root)
     else:
         from ..bench.trees import benchmark_trees
 
-        result = benchmark_trees()
+        result = benchmark_trees(root)
     if args.json:
         print(json.dumps(result))
     else:

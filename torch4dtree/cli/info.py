@@ -6,13 +6,16 @@ import argparse
 import json
 from pathlib import Path
 
-from ..config import add_config_arguments, config_from_args
-from ..trees.structures import TreeError
+from .options import add_config_arguments, config_from_args
+
+# columns of the per-frame table: header, alignment (">" numbers, "<" text)
+COLUMNS = (("time", ">"), ("branches", ">"), ("height", ">"), ("length", ">"), ("per layer", "<"))
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("path")
-    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("path", help="an SWC or .mat tree file, a sequence folder (one file per frame) or a dataset folder "
+                                "(one sequence folder per plant)")
+    p.add_argument("--json", action="store_true", help="print one JSON object instead of tables")
     add_config_arguments(p)
 
 
@@ -37,7 +40,7 @@ def info(path: str | Path, options: object = None) -> dict:
             return {"file": str(path), "empty": True}
         return {"file": str(path), **{k: v[0] for k, v in _tree_summary(tree).items()}}
     if not path.is_dir():
-        raise TreeError(f"{path}: no such file or folder")
+        raise FileNotFoundError(f"{path}: no such file or folder")
 
     def sequence(folder: Path) -> dict:
         loaded = read_sequence(folder, options)
@@ -50,25 +53,40 @@ def info(path: str | Path, options: object = None) -> dict:
     return {"sequences": [sequence(p) for p in sequence_folders(path)]}
 
 
-def _print_sequence(s: dict) -> None:
-    print(f"{s['name']}: {s['frames']} frames" + (f" ({len(s['skipped'])} empty skipped)" if s["skipped"] else ""))
-    print(f"  {'time':>8} {'branches':>8}  {'per layer':<16} {'height':>8} {'length':>9}")
-    for t, n, layers, h, ln in zip(s["times"], s["branches"], s["branches_per_layer"], s["height"], s["total_length"]):
-        print(f"  {t:8g} {n:8d}  {str(layers):<16} {h:8.1f} {ln:9.1f}")
+def _rows(s: dict) -> list[tuple[str, ...]]:
+    """The cells of a sequence's table, one tuple of strings per frame (in COLUMNS order)."""
+    return [(f"{t:g}", str(n), f"{h:.1f}", f"{ln:.1f}", " ".join(map(str, layers)))
+            for t, n, layers, h, ln in zip(s["times"], s["branches"], s["branches_per_layer"], s["height"],
+                                            s["total_length"])]
+
+
+def format_tables(sequences: list[dict]) -> list[str]:
+    """Lines of one table per sequence, with the same column widths in all of them (wide enough for every
+    cell, so that no long row shifts the columns after it)."""
+    rows = [_rows(s) for s in sequences]
+    header = tuple(name for name, _ in COLUMNS)
+    widths = [max(len(r[c]) for r in [header, *(row for rs in rows for row in rs)]) for c in range(len(COLUMNS))]
+
+    def line(cells: tuple[str, ...]) -> str:
+        return ("  " + "  ".join(f"{x:{a}{w}}" for x, (_, a), w in zip(cells, COLUMNS, widths))).rstrip()
+
+    lines = []
+    for s, rs in zip(sequences, rows):
+        skipped = f" ({len(s['skipped'])} empty skipped)" if s["skipped"] else ""
+        lines += [f"{s['name']}: {s['frames']} frames{skipped}", line(header)] + [line(r) for r in rs]
+    return lines
 
 
 def run(args: argparse.Namespace) -> int:
     summary = info(args.path, config_from_args(args).load_options())
     if args.json:
         print(json.dumps(summary))
-    elif "sequences" in summary:
-        for s in summary["sequences"]:
-            _print_sequence(s)
-    elif "frames" in summary:
-        _print_sequence(summary)
+    elif "sequences" in summary or "frames" in summary:
+        print("\n".join(format_tables(summary.get("sequences", [summary]))))
     elif summary.get("empty"):
         print(f"{summary['file']}: empty frame")
     else:
-        print(f"{summary['file']}: {summary['branches']} branches, per layer {summary['branches_per_layer']}, "
+        layers = " ".join(map(str, summary["branches_per_layer"]))
+        print(f"{summary['file']}: {summary['branches']} branches (per layer {layers}), "
               f"height {summary['height']:.1f}, total length {summary['total_length']:.1f}")
     return 0

@@ -15,16 +15,17 @@ from pathlib import Path
 
 import torch
 
-from ..config import add_config_arguments, config_from_args
-from ..trees.structures import TreeError
+from .options import UsageError, add_config_arguments, check_output_file, config_from_args, int_at_least
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("reference", help="4D tree A: a sequence folder of .swc or .mat frames (missing days allowed)")
     p.add_argument("moving", help="4D tree B: a sequence folder, registered onto A")
     add_config_arguments(p, registration=True)
-    p.add_argument("--n-t", type=int, default=32, help="common time samples of the trajectories (default 32)")
-    p.add_argument("--steps", type=int, default=5, help="4D trees along the geodesic for --out / --image (default 5)")
+    p.add_argument("--n-t", type=int_at_least(2), default=32, metavar="N",
+                   help="common time samples of the trajectories (default: %(default)s)")
+    p.add_argument("--steps", type=int_at_least(2), default=5, metavar="N",
+                   help="4D trees along the geodesic for --out / --image (default: %(default)s)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--out", default=None, help="folder for the registered 4D trees and the geodesic (sequence folders)")
     p.add_argument("--image", default=None, help="the 4D geodesic as a grid picture (.png) or video (.gif, .mp4)")
@@ -36,7 +37,7 @@ def _read(folder: str, options: object) -> object:
 
     path = Path(folder)
     if not path.is_dir():
-        raise FileNotFoundError(f"{path}: not a sequence folder (expected a folder of frame files)")
+        raise UsageError(f"{path}: not a sequence folder (expected a folder of frame files)")
     return read_sequence(path, options).sequence
 
 
@@ -44,11 +45,10 @@ def run(args: argparse.Namespace) -> int:
     from ..io import write_sequence
     from ..temporal import register4d
 
-    if args.n_t < 2 or args.steps < 2:
-        raise TreeError(f"--n-t and --steps must be at least 2, got {args.n_t} and {args.steps}")
-    image = Path(args.image) if args.image else None
-    if image is not None and image.exists() and not args.overwrite:  # fail before the work
-        raise FileExistsError(f"{image} exists; pass --overwrite to replace it")
+    from ..render import IMAGE_SUFFIXES, VIDEO_SUFFIXES
+
+    image = check_output_file(Path(args.image), args.overwrite, IMAGE_SUFFIXES + VIDEO_SUFFIXES, "--image") \
+        if args.image else None  # fail before the work
     cfg = config_from_args(args)
     opts = dataclasses.replace(cfg.load_options(), dtype=torch.float64)
     a, b = _read(args.reference, opts), _read(args.moving, opts)
@@ -66,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
         for name, seq in folders:
             written += [str(p) for p in write_sequence(out / name, seq, overwrite=args.overwrite, comment=note)]
     if image is not None:
-        from ..render import VIDEO_SUFFIXES, render_grid, save_image, save_video
+        from ..render import render_grid, save_image, save_video
 
         rows = [f"tau = {k / (args.steps - 1):.2f}" for k in range(args.steps)]
         title = (f"{Path(args.reference).name} -> {Path(args.moving).name}: 4D distance "

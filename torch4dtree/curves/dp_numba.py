@@ -1,12 +1,27 @@
-"""The numba backend of the DP warp and of curve registration (CPU, parallel over pairs).
+"""The numba backend of the DP warp and of curve registration (CPU, threads over pairs).
 
 See :mod:`torch4dtree.curves.register` for the energy and the lattice; this module holds the
-compiled kernels only (compiled once and cached on disk).
+compiled kernels (compiled once and cached on disk) and the thin driver that calls them:
+``_nb_pairs`` is the only kernel called from Python, so the whole engine is one compiled signature
+(a cold compile of each extra entry point would repeat most of the work). Batches of at least
+``2 * PARALLEL_MIN_PAIRS`` pairs are shared between threads (the kernel releases the GIL); smaller
+ones run on the calling thread alone. The first compile in a process prints a one-line notice.
+
+Compile time: numba links every callee into its caller and LLVM re-optimises the whole linked module at
+each level, so the cold compile grows with the depth of the call chain. Functions with a single caller on
+the main chain (``_nb_register_one``, ``_nb_alternate``, ``_nb_dp_search``) are therefore inlined at numba
+level (``inline="always"``): same code and results, one level each less (measured, CPU time of a cold
+compile on 2 cores: three entry kernels 75 + 59 + 69 s before, one entry 63 s, flattened 57 s, inlined 49 s).
 """
 
 from __future__ import annotations
 
 import math
+import os
+import sys
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import torch
@@ -17,6 +32,7 @@ from .warps import _step_arrays
 
 try:  # numba is optional: without it the torch backend is used everywhere
     import numba
+    import numba.core.event
 
     from .refinement import _nb_gauss_newton
 
@@ -364,7 +380,7 @@ if HAVE_NUMBA:
         _nb_inverse_srvf(q, beta)
         return beta
 
-    @numba.njit(cache=True, boundscheck=False)
+    @numba.njit(cache=True, boundscheck=False, inline="always")
     def _nb_dp_search(q1: np.ndarray, QW: np.ndarray, SS: np.ndarray, off: np.ndarray, A: np.ndarray,
                       Bs: np.ndarray, n: int, band: int, init: np.ndarray, gamma: np.ndarray) -> float:
         """Full DP (``band < 0`` or no ``init``) or DP in a band around ``init (M+1,)``."""
@@ -379,7 +395,7 @@ if HAVE_NUMBA:
             _nb_band(init, M, n, band, lo, hi)
         return _nb_dp_tab(q1, QW, SS, off, A, Bs, lo, hi, gamma)
 
-    @numba.njit(cache=True, boundscheck=False)
+    @numba.njit(cache=True, boundscheck=False, inline="always")
     def _nb_alternate(q1: np.ndarray, beta2: np.ndarray, QW: np.ndarray, SS: np.ndarray, off: np.ndarray,
                       A: np.ndarray, Bs: np.ndarray, n: int, band: int, mode: int, up: np.ndarray, max_iters: int,
                       tol: float, refine: int, O0: np.ndarray, init: np.ndarray, gamma: np.ndarray,
@@ -455,7 +471,7 @@ if HAVE_NUMBA:
         F[(i + 1) % d, (i + 1) % d] = -1.0
         return O @ F
 
-    @numba.njit(cache=True, boundscheck=False)
+    @numba.njit(cache=True, boundscheck=False, inline="always")
     def _nb_register_one(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, Bs: np.ndarray, Af: np.ndarray,
                          Bf: np.ndarray, cfg: np.ndarray, up: np.ndarray, tol: float, gamma: np.ndarray,
                          O: np.ndarray) -> tuple[float, float]:
@@ -529,42 +545,12 @@ if HAVE_NUMBA:
                 O[:, :] = OL
         return best, e_before
 
-    @numba.njit(cache=True, parallel=True, boundscheck=False)
-    def _nb_register_batch(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, Bs: np.ndarray, Af: np.ndarray,
-                           Bf: np.ndarray, cfg: np.ndarray, up: np.ndarray,
-                           tol: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        Bn, M, d = q1.shape
-        energy = np.empty(Bn)
-        before = np.empty(Bn)
-        gamma = np.empty((Bn, M + 1))
-        O = np.empty((Bn, d, d))
-        for p in numba.prange(Bn):
-            energy[p], before[p] = _nb_register_one(q1[p], q2[p], A, Bs, Af, Bf, cfg, up, tol, gamma[p], O[p])
-        return energy, before, gamma, O
-
     @numba.njit(cache=True, boundscheck=False)
-    def _nb_register_serial(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, Bs: np.ndarray, Af: np.ndarray,
-                            Bf: np.ndarray, cfg: np.ndarray, up: np.ndarray,
-                            tol: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        Bn, M, d = q1.shape
-        energy = np.empty(Bn)
-        before = np.empty(Bn)
-        gamma = np.empty((Bn, M + 1))
-        O = np.empty((Bn, d, d))
-        for p in range(Bn):
-            energy[p], before[p] = _nb_register_one(q1[p], q2[p], A, Bs, Af, Bf, cfg, up, tol, gamma[p], O[p])
-        return energy, before, gamma, O
-
-    @numba.njit(cache=True, boundscheck=False)
-    def _nb_curves_one(mov: np.ndarray, ref: np.ndarray, srvf_input: bool, A: np.ndarray, Bs: np.ndarray,
-                       Af: np.ndarray, Bf: np.ndarray, cfg: np.ndarray, up: np.ndarray, tol: float,
-                       gamma: np.ndarray, O: np.ndarray, registered: np.ndarray,
-                       q_reg: np.ndarray) -> tuple[float, float]:
-        """The whole of ``register_curves`` for one pair without gradients: input prep (inverse SRVF,
-        resampling, SRVFs), ``_nb_register_one`` and the registered curve; returns (energy, identity energy).
-
-        ``mov (T2, d)``, ``ref (T, d)`` are curves (SRVFs ``(T2-1, d)``, ``(T-1, d)`` if ``srvf_input``).
-        """
+    def _nb_prepare(mov: np.ndarray, ref: np.ndarray,
+                    srvf_input: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``register_curves``' inputs of one pair: ``mov (T2, d)``, ``ref (T, d)`` curves (SRVFs ``(T2-1, d)``,
+        ``(T-1, d)`` if ``srvf_input``) -> the curves ``beta_m`` (resampled to ``T`` points), ``beta_r`` and their
+        SRVFs ``q_mov``, ``q_ref (T-1, d)``."""
         if srvf_input:
             beta_r = _nb_inverse_from(ref)
             beta_m = _nb_inverse_from(mov)
@@ -578,7 +564,14 @@ if HAVE_NUMBA:
         q_mov = np.empty((T - 1, d))
         _nb_srvf(beta_r, q_ref)
         _nb_srvf(beta_m, q_mov)
-        _, before = _nb_register_one(q_ref, q_mov, A, Bs, Af, Bf, cfg, up, tol, gamma, O)
+        return beta_m, beta_r, q_mov, q_ref
+
+    @numba.njit(cache=True, boundscheck=False)
+    def _nb_finish(beta_m: np.ndarray, beta_r: np.ndarray, q_ref: np.ndarray, gamma: np.ndarray, O: np.ndarray,
+                   registered: np.ndarray, q_reg: np.ndarray) -> float:
+        """``register_curves``' outputs of one pair: writes the registered curve ``(T, d)`` (warped, rotated,
+        translated to start at the reference's first point) and its SRVF; returns its energy against ``q_ref``."""
+        T, d = beta_r.shape
         bw = np.empty((T, d))
         _nb_interp(beta_m, gamma, bw)
         for m in range(T):
@@ -596,39 +589,31 @@ if HAVE_NUMBA:
             for c in range(d):
                 x = q_ref[m, c] - q_reg[m, c]
                 e += x * x
-        return e / (T - 1), before
+        return e / (T - 1)
 
-    @numba.njit(cache=True, parallel=True, boundscheck=False)
-    def _nb_curves_batch(mov: np.ndarray, ref: np.ndarray, srvf_input: bool, A: np.ndarray, Bs: np.ndarray,
-                         Af: np.ndarray, Bf: np.ndarray, cfg: np.ndarray, up: np.ndarray, tol: float,
-                         chunks: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
-                                                  np.ndarray]:
-        """``_nb_curves_one`` over a batch, split into ``chunks`` interleaved chunks run in parallel."""
-        Bn = ref.shape[0]
-        T = ref.shape[1] + (1 if srvf_input else 0)
-        d = ref.shape[2]
-        energy = np.empty(Bn)
-        before = np.empty(Bn)
-        gamma = np.empty((Bn, T))
-        O = np.empty((Bn, d, d))
-        registered = np.empty((Bn, T, d))
-        q_reg = np.empty((Bn, T - 1, d))
-        nch = max(min(chunks, Bn), 1)
-        for ch in numba.prange(nch):
-            for p in range(ch, Bn, nch):  # interleaved: neighbouring pairs often cost alike
-                energy[p], before[p] = _nb_curves_one(mov[p], ref[p], srvf_input, A, Bs, Af, Bf, cfg, up, tol,
-                                                      gamma[p], O[p], registered[p], q_reg[p])
-        return energy, before, gamma, O, registered, q_reg
+    @numba.njit(cache=True, nogil=True, boundscheck=False)
+    def _nb_pairs(curves: bool, mov: np.ndarray, ref: np.ndarray, srvf_input: bool, A: np.ndarray, Bs: np.ndarray,
+                  Af: np.ndarray, Bf: np.ndarray, cfg: np.ndarray, up: np.ndarray, tol: float, start: int, step: int,
+                  energy: np.ndarray, before: np.ndarray, gamma: np.ndarray, O: np.ndarray, registered: np.ndarray,
+                  q_reg: np.ndarray) -> None:
+        """Pairs ``start, start + step, ...`` of a batch, written into the output arrays (the one entry point
+        from Python: one compiled signature serves every call, and ``nogil`` lets threads share a batch).
 
-    @numba.njit(cache=True, parallel=True, boundscheck=False)
-    def _nb_dp_batch(q1: np.ndarray, beta2: np.ndarray, A: np.ndarray, Bs: np.ndarray, lo: np.ndarray,
-                     hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        Bn, M, _ = q1.shape
-        energy = np.empty(Bn)
-        gamma = np.empty((Bn, M + 1))
-        for p in numba.prange(Bn):
-            energy[p] = _nb_dp_one(q1[p], beta2[p], A, Bs, lo[p], hi[p], gamma[p])
-        return energy, gamma
+        ``curves``: the whole of ``register_curves`` without gradients (``mov (B, T2, d)``, ``ref (B, T, d)``
+        curves or SRVFs; ``_nb_prepare``, ``_nb_register_one``, ``_nb_finish``; fills every output).
+        Otherwise ``_nb_register_one`` on SRVFs ``q1 = ref``, ``q2 = mov``, both ``(B, M, d)``; fills
+        ``energy``, ``before``, ``gamma (B, M+1)``, ``O``; ``registered`` and ``q_reg`` may then be empty.
+        ``_nb_register_one`` has one call site, so it is compiled (and optimised) once.
+        """
+        for p in range(start, ref.shape[0], step):
+            if curves:
+                beta_m, beta_r, q_mov, q_ref = _nb_prepare(mov[p], ref[p], srvf_input)
+            else:
+                beta_m, beta_r, q_mov, q_ref = mov[p], ref[p], mov[p], ref[p]
+            e, before[p] = _nb_register_one(q_ref, q_mov, A, Bs, Af, Bf, cfg, up, tol, gamma[p], O[p])
+            if curves:
+                e = _nb_finish(beta_m, beta_r, q_ref, gamma[p], O[p], registered[p], q_reg[p])
+            energy[p] = e
 
     @numba.njit(cache=True, boundscheck=False)
     def _nb_dp_serial(q1: np.ndarray, beta2: np.ndarray, A: np.ndarray, Bs: np.ndarray, lo: np.ndarray,
@@ -641,16 +626,132 @@ if HAVE_NUMBA:
         return energy, gamma
 
 
-# below this many pairs a parallel launch costs more than it saves (and stalls on a busy machine)
-PARALLEL_MIN_PAIRS = 8
+# ----------------------------------------------------------------------------- threads
+# Each thread gets at least this many pairs: a small batch runs on the calling thread alone, because
+# waking a second thread costs more than it saves, and on a machine whose other cores are busy the
+# woken thread can wait a whole scheduler time slice (milliseconds) for a core (benchmarks/README.md).
+PARALLEL_MIN_PAIRS = 16
+
+_POOL: ThreadPoolExecutor | None = None
+_POOL_LOCK = threading.Lock()
+_COMPILE_LOCK = threading.Lock()
+
+
+def pair_threads(n_pairs: int) -> int:
+    """Threads used for a batch of ``n_pairs``: 1 below ``2 * PARALLEL_MIN_PAIRS`` pairs, else up to
+    ``numba.get_num_threads()`` (which honours ``NUMBA_NUM_THREADS`` and ``numba.set_num_threads``)."""
+    if not HAVE_NUMBA or n_pairs < 2 * PARALLEL_MIN_PAIRS:
+        return 1
+    return max(1, min(numba.get_num_threads(), n_pairs // PARALLEL_MIN_PAIRS))
+
+
+def _pool() -> ThreadPoolExecutor:
+    global _POOL
+    with _POOL_LOCK:
+        if _POOL is None:
+            _POOL = ThreadPoolExecutor(max_workers=max(os.cpu_count() or 1, 1), thread_name_prefix="torch4dtree")
+        return _POOL
+
+
+# ----------------------------------------------------------------------------- compile notice
+# cold compile of _nb_pairs (every kernel): 49 s of CPU on this project's 2-core machine; cached on disk afterwards
+COMPILE_ESTIMATE = "about a minute on 2 cores"
+_READY = False  # the kernels have been loaded (or compiled) in this process
+
+
+def _note(text: str) -> None:
+    print(f"torch4dtree: {text}", file=sys.stderr, flush=True)
+
+
+class _CompileNotice(numba.core.event.Listener if HAVE_NUMBA else object):  # type: ignore[misc]
+    """Says once, on stderr, that the kernels are being compiled (a numba cache miss), and how long it took."""
+
+    def __init__(self, hint: bool = True) -> None:
+        self.hint = hint  # point to ``torch4dtree warmup`` (not when that is what runs)
+        self.depth = 0
+        self.t0 = 0.0
+        self.seconds: float | None = None
+
+    def on_start(self, event: object) -> None:
+        if self.depth == 0 and self.seconds is None:
+            self.t0 = time.perf_counter()
+            hint = "; `torch4dtree warmup` does it ahead of time" if self.hint else ""
+            _note(f"compiling the registration kernels, once after installing or updating ({COMPILE_ESTIMATE}; "
+                  f"cached for later runs{hint})...")
+        self.depth += 1
+
+    def on_end(self, event: object) -> None:
+        self.depth -= 1
+        if self.depth == 0 and self.seconds is None:
+            self.seconds = time.perf_counter() - self.t0
+            _note(f"kernels compiled in {self.seconds:.0f} s")
+
+
+def _first_call(*args: object, hint: bool = True) -> float | None:
+    """The first kernel call of the process, listening for a compile (instead of a load from the disk cache).
+    Returns the compile time in seconds, or None if the kernels came from the cache."""
+    global _READY
+    with _COMPILE_LOCK:  # one thread compiles; the others wait for it
+        if _READY:
+            _nb_pairs(*args)
+            return None
+        notice = _CompileNotice(hint)
+        with numba.core.event.install_listener("numba:compile", notice):
+            _nb_pairs(*args)
+        _READY = True
+        return notice.seconds
+
+
+def run_pairs(curves: bool, mov: np.ndarray, ref: np.ndarray, srvf_input: bool, steps: tuple[np.ndarray, ...],
+              cfg: np.ndarray, up: np.ndarray, tol: float) -> tuple[np.ndarray, ...]:
+    """Run :func:`_nb_pairs` over a batch on :func:`pair_threads` threads (the calling thread takes a share).
+
+    ``steps = (A, Bs, Af, Bf)``. Returns ``energy (B,), before (B,), gamma (B, T), O (B, d, d), registered
+    (B, T, d), q_reg (B, T-1, d)``; the last two are empty ``(0, 0, 0)`` arrays unless ``curves``.
+    """
+    B, d = ref.shape[0], ref.shape[2]
+    T = ref.shape[1] + (1 if (srvf_input or not curves) else 0)
+    shape = (B, T, d) if curves else (0, 1, 0)
+    outs = (np.empty(B), np.empty(B), np.empty((B, T)), np.empty((B, d, d)), np.empty(shape),
+            np.empty((shape[0], shape[1] - 1, shape[2])))
+
+    def share(start: int, step: int) -> None:
+        _nb_pairs(bool(curves), mov, ref, bool(srvf_input), *steps, cfg, up, float(tol), start, step, *outs)
+
+    if not _READY:
+        _first_call(bool(curves), mov[:0], ref[:0], bool(srvf_input), *steps, cfg, up, float(tol), 0, 1, *outs)
+    threads = pair_threads(B)
+    if threads == 1:
+        share(0, 1)
+    else:  # interleaved shares: neighbouring pairs often cost alike
+        futures = [_pool().submit(share, k, threads) for k in range(1, threads)]
+        share(0, threads)
+        for f in futures:
+            f.result()
+    return outs
+
+
+def warm_up() -> float | None:
+    """Load the kernels from the disk cache, or compile them (printing a notice) if the cache is cold.
+    Returns the compile time in seconds, or None if nothing was compiled (or numba is missing)."""
+    if not HAVE_NUMBA:
+        return None
+    global _READY
+    if _READY:
+        return None
+    z = np.zeros((0, 8, 3))
+    A, Bs = _step_arrays(2)
+    outs = (np.empty(0), np.empty(0), np.empty((0, 8)), np.empty((0, 3, 3)), np.empty((0, 8, 3)), np.empty((0, 7, 3)))
+    # the same argument types as run_pairs, so this compiles (or loads) the one signature real calls use
+    return _first_call(True, z, z, False, A, Bs, A, Bs, np.zeros(9, np.int64), np.zeros(3), 0.0, 0, 1, *outs,
+                       hint=False)
 
 
 def _dp_numba(q1: Tensor, q2: Tensor, n: int, lo: np.ndarray, hi: np.ndarray) -> tuple[Tensor, Tensor]:
     A, Bs = _step_arrays(n)
     q1n = q1.detach().to("cpu", torch.float64).contiguous().numpy()
     beta2 = inverse_srvf(q2.detach().to("cpu", torch.float64)).contiguous().numpy()
-    kernel = _nb_dp_batch if len(q1n) >= PARALLEL_MIN_PAIRS and numba.get_num_threads() > 1 else _nb_dp_serial
-    energy, gamma = kernel(q1n, beta2, A, Bs, lo, hi)
+    energy, gamma = _nb_dp_serial(q1n, beta2, A, Bs, lo, hi)
     return torch.from_numpy(energy), torch.from_numpy(gamma)
 
 

@@ -25,8 +25,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from . import dp_numba
-from .dp_numba import HAVE_NUMBA, _dp_numba
+from .dp_numba import HAVE_NUMBA, _dp_numba, run_pairs
 from .dp_torch import _dp_torch
 from .refinement import gauss_newton_torch
 from .rotation import axis_rotation, check_rotation_mode, optimal_rotation
@@ -34,15 +33,6 @@ from .srvf import interpolate_curve, inverse_srvf, srvf, srvf_sq_distance, unifo
 from .warps import _band_around, _reachable_band, _step_arrays, identity_warp, warp_energy
 
 __all__ = ["CurveRegistration", "DPWarp", "dp_warp", "elastic_distance", "register_curves"]
-
-if HAVE_NUMBA:
-    import numba
-
-    from .dp_numba import (
-        _nb_curves_batch,
-        _nb_register_batch,
-        _nb_register_serial,
-    )
 
 
 # ----------------------------------------------------------------------------- DP driver
@@ -257,9 +247,7 @@ def _register_numba(q1: Tensor, q2: Tensor, rotation: str, up: Tensor,
     q1n = q1.detach().to("cpu", torch.float64).contiguous().numpy()
     q2n = q2.detach().to("cpu", torch.float64).contiguous().numpy()
     upn = up.detach().to("cpu", torch.float64).contiguous().numpy()
-    kernel = _nb_register_batch if len(q1n) >= dp_numba.PARALLEL_MIN_PAIRS and numba.get_num_threads() > 1 \
-        else _nb_register_serial
-    out = kernel(q1n, q2n, A, Bs, Af, Bf, ints, upn, float(cfg.tol))
+    out = run_pairs(False, q2n, q1n, False, (A, Bs, Af, Bf), ints, upn, cfg.tol)[:4]
     return tuple(torch.from_numpy(x).to(q1.device, q1.dtype) for x in out)  # type: ignore[return-value]
 
 
@@ -274,9 +262,8 @@ def _register_curves_numba(moving: Tensor, reference: Tensor, srvf_input: bool, 
     mov = moving.detach().to("cpu", torch.float64).contiguous().numpy()
     ref = reference.detach().to("cpu", torch.float64).contiguous().numpy()
     upn = up.detach().to("cpu", torch.float64).contiguous().numpy()
-    chunks = numba.get_num_threads() if len(ref) >= dp_numba.PARALLEL_MIN_PAIRS else 1
-    energy, before, gamma, O, reg, q_reg = _nb_curves_batch(mov, ref, srvf_input, A, Bs, Af, Bf, ints, upn,
-                                                            float(cfg.tol), chunks)
+    energy, before, gamma, O, reg, q_reg = run_pairs(True, mov, ref, srvf_input, (A, Bs, Af, Bf), ints, upn,
+                                                     cfg.tol)
     distance = np.sqrt(np.maximum(energy, 0.0))
     dt, dev = reference.dtype, reference.device
     return CurveRegistration(*(torch.from_numpy(x).to(dev, dt)

@@ -11,31 +11,46 @@ def _exists_error(path: Path) -> FileExistsError:
     return FileExistsError(f"{path} exists; pass overwrite=True (--overwrite) to replace it")
 
 
+def about_target(err: OSError, path: Path) -> OSError:
+    """``err`` (of the same class) about ``path`` instead of a hidden temporary file, whose name means nothing
+    to the user (e.g. ``IsADirectoryError`` when ``path`` is a folder, a full disk, no write permission)."""
+    text = err.strerror or str(err)
+    return type(err)(err.errno, text, str(path)) if err.errno is not None else type(err)(f"{path}: {text}")
+
+
 def publish_file(tmp: Path, path: Path, overwrite: bool = False) -> None:
     """Move a finished temporary file (same folder) to ``path``.
 
     Without ``overwrite`` an existing file is never replaced, even one that appears meanwhile: a hard
     link is an atomic "create only if absent" (with a checked rename where links are unsupported).
     """
-    if overwrite:
-        os.replace(tmp, path)
-        return
     try:
-        os.link(tmp, path)
-    except FileExistsError:
-        raise _exists_error(path) from None
-    except OSError:  # a file system without hard links
-        if path.exists():
+        if overwrite:
+            os.replace(tmp, path)
+            return
+        try:
+            os.link(tmp, path)
+        except FileExistsError:
             raise _exists_error(path) from None
-        os.replace(tmp, path)
-        return
+        except OSError:  # a file system without hard links
+            if path.exists():
+                raise _exists_error(path) from None
+            os.replace(tmp, path)
+            return
+    except FileExistsError:
+        raise
+    except OSError as e:
+        raise about_target(e, path) from None
     tmp.unlink()
 
 
 def temporary_path(path: Path) -> Path:
     """A new empty temporary file beside ``path`` (the folder is created if needed)."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=path.suffix or ".tmp")
+    try:
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=path.suffix or ".tmp")
+    except OSError as e:
+        raise about_target(e, path) from None
     os.close(fd)
     umask = os.umask(0)
     os.umask(umask)
@@ -54,7 +69,10 @@ def write_bytes_safely(path: Path, data: bytes, overwrite: bool = False) -> Path
         raise _exists_error(path)
     tmp = temporary_path(path)
     try:
-        tmp.write_bytes(data)
+        try:
+            tmp.write_bytes(data)
+        except OSError as e:
+            raise about_target(e, path) from None
         publish_file(tmp, path, overwrite)
     finally:
         tmp.unlink(missing_ok=True)

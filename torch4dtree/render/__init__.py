@@ -1,12 +1,14 @@
 """Offscreen rendering of trees and 4D trees (pyrender through EGL): images, videos, grids.
 
-``pyrender``, ``trimesh``, ``imageio`` and ``Pillow`` are imported lazily, so importing this package
-never needs OpenGL.
+``pyrender``, ``trimesh``, ``imageio``, ``Pillow`` (and torch) are imported lazily, so importing this package
+never needs OpenGL and stays cheap for the command line.
 """
 
 from .frames import (
     branch_colors,
     close_renderer,
+    fit_size,
+    format_time,
     render_grid,
     render_sequence,
     render_trees,
@@ -15,6 +17,7 @@ from .frames import (
     save_video,
     tree_meshes,
 )
+from .interpolate import interpolate_sequence
 from .options import (
     COLOR_MODES,
     GL_PACKAGES,
@@ -29,6 +32,7 @@ from .options import (
 
 __all__ = [
     "COLOR_MODES", "GL_PACKAGES", "IMAGE_SUFFIXES", "LABEL_PALETTE", "LAYER_COLORS", "UNLABELLED_COLOR",
-    "VIDEO_SUFFIXES", "VIEWS", "RenderOptions", "branch_colors", "close_renderer", "render_grid", "render_sequence",
-    "render_trees", "save_frames", "save_image", "save_video", "tree_meshes",
+    "VIDEO_SUFFIXES", "VIEWS", "RenderOptions", "branch_colors", "close_renderer", "fit_size", "format_time",
+    "interpolate_sequence", "render_grid", "render_sequence", "render_trees", "save_frames", "save_image", "save_video",
+    "tree_meshes",
 ]

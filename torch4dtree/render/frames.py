@@ -27,12 +27,10 @@ import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..io.files import publish_file, temporary_path, write_bytes_safely
-from ..trees.structures import TreeError, Trees, TreeSequence
 from .options import (
     COLOR_MODES,
     GL_PACKAGES,
@@ -44,6 +42,9 @@ from .options import (
     RenderOptions,
     _options,
 )
+
+if TYPE_CHECKING:  # imported where used: importing the renderer must not import torch (fast CLI start)
+    from ..trees.structures import Trees, TreeSequence
 
 
 # ------------------------------------------------------------------------------------ geometry
@@ -259,6 +260,8 @@ def _all_points(batches: Sequence[Trees]) -> np.ndarray:
     pts = [b.points.detach().cpu().double().numpy().reshape(-1, b.dim) for b in batches]
     out = np.concatenate(pts)
     if out.shape[1] != 3:
+        from ..trees.structures import TreeError
+
         raise TreeError(f"only 3D trees can be rendered, got dimension {out.shape[1]}")
     return out
 
@@ -440,21 +443,35 @@ def _time_index(times: np.ndarray, n: int) -> list[int]:
     return np.clip(np.searchsorted(times, u + tol, side="right") - 1, 0, len(times) - 1).tolist()
 
 
+def format_time(t: float) -> str:
+    """A time for a label: whole numbers as such, others with one decimal (``"t = 66.5"``)."""
+    return f"t = {t:.0f}" if abs(t - round(t)) < 1e-6 else f"t = {t:.1f}"
+
+
+def _video_times(times: np.ndarray, n: int) -> np.ndarray:
+    """``n`` evenly spaced times over ``[times[0], times[-1]]``."""
+    return np.linspace(times[0], times[-1], n) if n > 1 else times[-1:].copy()
+
+
 def render_sequence(
     seq: TreeSequence,
     n_frames: int | None = None,
     options: RenderOptions | None = None,
     caption: bool = False,
+    interpolate: bool = False,
     **overrides: Any,
 ) -> np.ndarray:
     """Render a 4D tree as a video with a fixed camera framing the whole sequence.
 
     Args:
         seq: the 4D tree.
-        n_frames: video frames (default: one per acquired frame). Video frame ``k`` shows the
-            latest acquired frame at time ``t_0 + k (t_n - t_0) / (n_frames - 1)``, so irregular
-            acquisition spacing stays visible; ``orbit`` turns the camera smoothly over all frames.
-        caption: write the sequence name and time in the top-left corner.
+        n_frames: video frames (default: one per acquired frame). Video frame ``k`` is at time
+            ``t_0 + k (t_n - t_0) / (n_frames - 1)``, so irregular acquisition spacing stays visible;
+            ``orbit`` turns the camera smoothly over all frames.
+        caption: write the sequence name and the frame's time in the top-left corner.
+        interpolate: show, between two scans, the geodesic between them at the elapsed fraction of
+            time (:func:`~torch4dtree.render.interpolate.interpolate_sequence`, one tree registration
+            per pair of scans); otherwise the latest scan acquired by then.
 
     Returns:
         ``(n_frames, H, W, 3)`` uint8.
@@ -464,24 +481,44 @@ def render_sequence(
     if n < 1:
         raise ValueError(f"n_frames must be >= 1, got {n}")
     times = seq.times.detach().cpu().double().numpy()
-    which = list(range(n)) if n_frames is None else _time_index(times, n)
-    framing, r0, rmin = _prepare([seq.frames], n, opts)
-    geoms = _tree_geometry(seq.frames, opts, r0, rmin)
-    frames = _render_frames(geoms, which, framing, opts)
+    if interpolate and len(seq) > 1:
+        from .interpolate import interpolate_sequence
+
+        shown = times if n_frames is None else _video_times(times, n)
+        trees, which = interpolate_sequence(seq, shown), list(range(n))
+    else:
+        which = list(range(n)) if n_frames is None else _time_index(times, n)
+        trees, shown = seq.frames, times[which]
+    framing, r0, rmin = _prepare([trees], n, opts)
+    frames = _render_frames(_tree_geometry(trees, opts, r0, rmin), which, framing, opts)
     if caption:
         name = f"{seq.name}  " if seq.name else ""
-        frames = np.stack([_draw_caption(f, f"{name}t = {times[w]:g}") for f, w in zip(frames, which)])
+        frames = np.stack([_draw_caption(f, f"{name}{format_time(t)}") for f, t in zip(frames, shown)])
     return frames
 
 
 def _as_batch(row: TreeSequence | Trees) -> tuple[Trees, np.ndarray]:
     """A grid row as a batch of trees and normalised times in ``[0, 1]``."""
+    from ..trees.structures import Trees, TreeSequence
+
     if isinstance(row, TreeSequence):
         return row.frames, row.normalized_times().detach().cpu().double().numpy()
     if isinstance(row, Trees):
         n = row.num_trees
         return row, (np.linspace(0, 1, n) if n > 1 else np.zeros(1))
     raise TypeError(f"grid rows must be TreeSequence or Trees, got {type(row).__name__}")
+
+
+def _interpolated_row(row: TreeSequence | Trees, n: int) -> tuple[Trees, list[int]]:
+    """``n`` trees of a row at evenly spaced times: geodesics between scans for a sequence, else the latest."""
+    from ..trees.structures import TreeSequence
+
+    if isinstance(row, TreeSequence) and len(row) > 1:
+        from .interpolate import interpolate_sequence
+
+        return interpolate_sequence(row, _video_times(row.times.detach().cpu().double().numpy(), n)), list(range(n))
+    batch, t = _as_batch(row)
+    return batch, _time_index(t, n)
 
 
 def render_grid(
@@ -494,6 +531,9 @@ def render_grid(
     n_frames: int | None = None,
     share_camera: bool = True,
     options: RenderOptions | None = None,
+    frame_labels: Sequence[str] | None = None,
+    interpolate: bool = False,
+    wrap: int | None = None,
     **overrides: Any,
 ) -> np.ndarray:
     """Several trees / 4D trees side by side (geodesics, modes of variation, samples), one shared camera.
@@ -503,11 +543,15 @@ def render_grid(
 
     Image (``video=False``): one row per input, one column per time; ``n_cols`` samples every row
     at that many evenly spaced normalised times (default: each row's frames in order, short rows
-    padded with white). ``col_labels`` go above the columns, ``row_labels`` left of the rows.
+    padded with white). ``col_labels`` go above the columns, ``row_labels`` left of the rows. ``wrap``
+    lays a single row out over several, at most ``wrap`` cells wide, each cell under its column label.
 
     Video (``video=True``): one cell per input laid out ``n_cols`` cells wide (default: up to 4),
     each cell animating its row over ``n_frames`` video frames (default: the longest row's length)
-    by normalised time; ``row_labels`` caption the cells.
+    by normalised time; ``row_labels`` caption the cells, ``frame_labels`` (one per video frame, e.g.
+    its time) are written under the title of every frame, and ``interpolate`` shows sequences between
+    their scans by geodesics (see :func:`render_sequence`). Titles may hold several lines (``\\n``);
+    they are set smaller, then wrapped, to fit the width.
 
     Returns:
         ``(H, W, 3)`` uint8 image, or ``(n_frames, H, W, 3)`` uint8 frames.
@@ -521,7 +565,11 @@ def render_grid(
     longest = max(b.num_trees for b, _ in batches)
     if video:
         n = n_frames or longest
-        which = [_time_index(t, n) for _, t in batches]
+        if interpolate:
+            batches, which = map(list, zip(*(_interpolated_row(r, n) for r in rows)))
+            batches = [(b, None) for b in batches]
+        else:
+            which = [_time_index(t, n) for _, t in batches]
     elif n_cols is not None:
         n = n_cols
         which = [_time_index(t, n) for _, t in batches]
@@ -530,6 +578,8 @@ def render_grid(
         which = [list(range(b.num_trees)) for b, _ in batches]
     if col_labels is not None and not video and len(col_labels) != n:
         raise ValueError(f"{len(col_labels)} column labels for {n} columns")
+    if frame_labels is not None and (not video or len(frame_labels) != n):
+        raise ValueError(f"frame_labels need video=True and one label per frame ({n}), got {len(frame_labels)}")
     if share_camera:
         shared = _prepare([b for b, _ in batches], n, opts)
     W, H = opts.wh
@@ -542,21 +592,59 @@ def render_grid(
             frames = np.concatenate([frames, np.full((n - len(w), H, W, 3), 255, np.uint8)])
         cells.append(frames)
     if not video:
+        if wrap is not None and len(cells) == 1 and n > wrap:
+            c = cells[0]
+            if col_labels is not None:
+                c = np.concatenate([_label_strip(c[k:k + 1], str(col_labels[k])) for k in range(n)])
+            R = -(-n // wrap)
+            c = np.concatenate([c, np.full((R * wrap - n, *c.shape[1:]), 255, np.uint8)])
+            return _compose(c.reshape(R, wrap, *c.shape[1:]), None, None, title)
         return _compose(np.stack(cells), row_labels, col_labels, title)
     per_row = n_cols or min(len(rows), 4)
     n_grid_rows = -(-len(rows) // per_row)
-    if row_labels is not None:
-        cells = [np.stack([_draw_caption(f, str(lab)) for f in c]) for c, lab in zip(cells, row_labels)]
+    if row_labels is not None:  # a label strip above each cell, not over the plant
+        cells = [_label_strip(c, str(lab)) for c, lab in zip(cells, row_labels)]
+        H = cells[0].shape[1]
     blank = np.full((n, H, W, 3), 255, np.uint8)
     cells += [blank] * (n_grid_rows * per_row - len(cells))
     tiles = np.stack(cells).reshape(n_grid_rows, per_row, n, H, W, 3)
     frames = tiles.transpose(2, 0, 3, 1, 4, 5).reshape(n, n_grid_rows * H, per_row * W, 3)
-    if title:
-        frames = np.stack([_compose(f[None, None], None, None, title) for f in frames])
+    if title or frame_labels is not None:
+        subs = [None] * n if frame_labels is None else list(frame_labels)
+        frames = np.stack([_compose(f[None, None], None, None, title, sub) for f, sub in zip(frames, subs)])
     return _even(frames)
 
 
+def fit_size(rows: Sequence[TreeSequence | Trees], longest: int = 512, share_camera: bool = True,
+             options: RenderOptions | None = None, max_aspect: float = 2.5, **overrides: Any) -> tuple[int, int]:
+    """A panel size ``(W, H)`` shaped like the trees as the camera sees them, so that they fill it.
+
+    The aspect ratio is that of the projected bounding box of every point of ``rows`` (of each row on
+    its own and then their geometric mean with ``share_camera=False``) over all camera azimuths of the
+    view, clamped to ``[1 / max_aspect, max_aspect]``; the longer side is ``longest`` pixels (sides even).
+    """
+    opts = _options(options, overrides)
+    batches = [_as_batch(r)[0] for r in rows]
+    groups = [batches] if share_camera else [[b] for b in batches]
+    elevation = 90.0 if opts.view == "top" else opts.elevation
+    axes = [_camera_axes(a, elevation, opts.up) for a in _frame_azimuths(opts, 36 if opts.view == "orbit" else 1)]
+    logs = []
+    for g in groups:
+        pts = _all_points(g)
+        rel = pts - (pts.min(0) + pts.max(0)) / 2
+        q = np.stack([rel @ R.T for R in axes])  # (views, P, 3) camera coordinates
+        wx = float(np.ptp(q[..., 0], axis=1).max())
+        wy = float(np.ptp(q[..., 1], axis=1).max())
+        logs.append(math.log(max(wx, 1e-12) / max(wy, 1e-12)))
+    aspect = min(max(math.exp(sum(logs) / len(logs)), 1 / max_aspect), max_aspect)
+    w, h = (longest, longest / aspect) if aspect >= 1 else (longest * aspect, longest)
+    return 2 * max(4, round(w / 2)), 2 * max(4, round(h / 2))
+
+
 # ------------------------------------------------------------------------------------ 2D layout
+TEXT_INK = (30, 30, 30)
+
+
 def _font(px: int) -> Any:
     from PIL import ImageFont
 
@@ -566,51 +654,133 @@ def _font(px: int) -> Any:
         return ImageFont.load_default()
 
 
+def _text_width(text: str, font: Any) -> int:
+    from PIL import Image, ImageDraw
+
+    x0, _, x1, _ = ImageDraw.Draw(Image.new("RGB", (1, 1))).textbbox((0, 0), text, font=font)
+    return x1 - x0
+
+
+def _line_height(font: Any) -> int:
+    """Height of a line of ``font`` whatever its letters (so that layouts do not change with the text)."""
+    try:
+        ascent, descent = font.getmetrics()
+        return int(ascent + descent)
+    except AttributeError:  # Pillow's old bitmap font
+        from PIL import Image, ImageDraw
+
+        _, y0, _, y1 = ImageDraw.Draw(Image.new("RGB", (1, 1))).textbbox((0, 0), "Agy|", font=font)
+        return y1 - y0
+
+
+def _shorten(text: str, width: int, font: Any) -> str:
+    """``text`` cut in the middle with an ellipsis until it fits ``width`` pixels."""
+    if _text_width(text, font) <= width:
+        return text
+    keep = len(text)
+    while keep > 1:
+        keep -= 1
+        cut = text[: (keep + 1) // 2] + "\u2026" + text[len(text) - keep // 2:]
+        if _text_width(cut, font) <= width:
+            return cut
+    return "\u2026"
+
+
+def _fit_text(text: str, width: int, px: int, min_px: int) -> tuple[list[str], Any]:
+    """Lines of ``text`` (split at newlines) and a font of at most ``px`` pixels with which each fits ``width``:
+    the font shrinks down to ``min_px``, then lines are wrapped at spaces, then cut in the middle."""
+    lines = text.split("\n")
+    size = px
+    while size > min_px and max(_text_width(ln, _font(size)) for ln in lines) > width:
+        size -= 1
+    font = _font(size)
+    out: list[str] = []
+    for ln in lines:
+        cur = ""
+        for word in ln.split(" "):
+            cand = f"{cur} {word}" if cur else word
+            if cur and _text_width(cand, font) > width:
+                out.append(cur)
+                cur = word
+            else:
+                cur = cand
+        out.append(cur)
+    return [_shorten(ln, width, font) for ln in out], font
+
+
+def _text_px(H: int, W: int) -> int:
+    """Font size in pixels for the labels of ``H x W`` cells (readable, not dominating)."""
+    return max(11, min(32, max(H, W) // 14))
+
+
+def _label_strip(frames: np.ndarray, text: str) -> np.ndarray:
+    """``(n, H, W, 3)`` frames with a white strip on top holding ``text``, centred (shrunk or cut to fit)
+    -> ``(n, H + h, W, 3)``."""
+    from PIL import Image, ImageDraw
+
+    n, H, W, _ = frames.shape
+    px = _text_px(H, W)
+    lines, font = _fit_text(text, W - px // 2, px, max(8, px * 2 // 3))
+    h = _line_height(font) + px // 2
+    strip = Image.new("RGB", (W, h), (255, 255, 255))
+    ImageDraw.Draw(strip).text(((W - _text_width(lines[0], font)) // 2, px // 4), lines[0], fill=TEXT_INK, font=font)
+    top = np.broadcast_to(np.asarray(strip), (n, h, W, 3))
+    return np.concatenate([top, frames], axis=1)
+
+
 def _draw_caption(frame: np.ndarray, text: str) -> np.ndarray:
-    """The frame with ``text`` in its top-left corner."""
+    """The frame with ``text`` in its top-left corner (shrunk or cut to fit the frame's width)."""
     from PIL import Image, ImageDraw
 
     img = Image.fromarray(frame)
     px = max(10, min(28, frame.shape[0] // 18))
-    ImageDraw.Draw(img).text((px // 2, px // 3), text, fill=(40, 40, 40), font=_font(px))
+    lines, font = _fit_text(text, frame.shape[1] - px, px, max(8, px * 2 // 3))
+    ImageDraw.Draw(img).text((px // 2, px // 3), lines[0], fill=(40, 40, 40), font=font)
     return np.asarray(img)
 
 
 def _compose(
-    cells: np.ndarray, row_labels: Sequence[str] | None, col_labels: Sequence[str] | None, title: str | None
+    cells: np.ndarray, row_labels: Sequence[str] | None, col_labels: Sequence[str] | None, title: str | None,
+    subtitle: str | None = None,
 ) -> np.ndarray:
-    """Tile ``cells (R, C, H, W, 3)`` into one image with a title, column labels and row labels."""
+    """Tile ``cells (R, C, H, W, 3)`` into one image with a title (any lines, fitted to the width), a
+    subtitle line (e.g. a video frame's time), column labels and row labels."""
     from PIL import Image, ImageDraw
 
     R, C, H, W, _ = cells.shape
-    px = max(11, min(32, H // 14))
-    font, title_font = _font(px), _font(int(px * 1.3))
-    probe = ImageDraw.Draw(Image.new("RGB", (1, 1)))
-
-    def text_wh(text: str, f: Any) -> tuple[int, int]:
-        x0, y0, x1, y1 = probe.textbbox((0, 0), text, font=f)
-        return x1 - x0, y1 - y0
-
+    px = _text_px(H, W)
+    font = _font(px)
     pad = px // 2
-    left = max((text_wh(str(t), font)[0] for t in row_labels), default=0) + 2 * pad if row_labels else 0
-    top_title = text_wh(title, title_font)[1] + 2 * pad if title else 0
-    top_cols = px + 2 * pad if col_labels else 0
-    top = top_title + top_cols
-    img = Image.new("RGB", (left + C * W, top + R * H), (255, 255, 255))
+    left = max((_text_width(str(t), font) for t in row_labels), default=0) + 2 * pad if row_labels else 0
+    full = left + C * W
+    title_lines, title_font = _fit_text(title, full - 2 * pad, int(px * 1.3), px * 2 // 3) if title else ([], font)
+    sub_lines, sub_font = _fit_text(subtitle, full - 2 * pad, px, px * 2 // 3) if subtitle is not None else ([], font)
+    col_texts, col_font = [], font
+    if col_labels:
+        col_texts = [str(c) for c in col_labels]
+        size = px
+        while size > max(8, px // 2) and max(_text_width(c, _font(size)) for c in col_texts) > W - pad:
+            size -= 1
+        col_font = _font(size)
+        col_texts = [_shorten(c, W - pad, col_font) for c in col_texts]
+    lh_title, lh_sub, lh_col = _line_height(title_font), _line_height(sub_font), _line_height(col_font)
+    top_title = len(title_lines) * lh_title + (pad if title_lines else 0)
+    top_sub = len(sub_lines) * lh_sub + (pad // 2 if sub_lines else 0)
+    top_cols = lh_col + pad if col_labels else 0
+    top = (top_title + top_sub + top_cols + pad) if (title_lines or sub_lines or col_labels) else 0
+    img = Image.new("RGB", (full, top + R * H), (255, 255, 255))
     img.paste(Image.fromarray(cells.transpose(0, 2, 1, 3, 4).reshape(R * H, C * W, 3)), (left, top))
     draw = ImageDraw.Draw(img)
-    ink = (30, 30, 30)
-    if title:
-        tw, _ = text_wh(title, title_font)
-        draw.text((left + (C * W - tw) // 2, pad), title, fill=ink, font=title_font)
-    if col_labels:
-        for c, lab in enumerate(col_labels):
-            tw, _ = text_wh(str(lab), font)
-            draw.text((left + c * W + (W - tw) // 2, top_title + pad), str(lab), fill=ink, font=font)
+    y = pad
+    for ln, f, lh in [(t, title_font, lh_title) for t in title_lines] + [(t, sub_font, lh_sub) for t in sub_lines]:
+        draw.text(((full - _text_width(ln, f)) // 2, y), ln, fill=TEXT_INK, font=f)
+        y += lh
+    for c, lab in enumerate(col_texts):
+        draw.text((left + c * W + (W - _text_width(lab, col_font)) // 2, top - top_cols), lab, fill=TEXT_INK,
+                  font=col_font)
     if row_labels:
         for r, lab in enumerate(row_labels):
-            _, th = text_wh(str(lab), font)
-            draw.text((pad, top + r * H + (H - th) // 2), str(lab), fill=ink, font=font)
+            draw.text((pad, top + r * H + (H - _line_height(font)) // 2), str(lab), fill=TEXT_INK, font=font)
     return np.asarray(img)
 
 
@@ -648,6 +818,8 @@ def save_image(path: str | Path, image: np.ndarray, overwrite: bool = False) -> 
     if path.exists() and not overwrite:  # fail before encoding
         raise FileExistsError(f"{path} exists; pass overwrite=True (--overwrite) to replace it")
     data = iio.imwrite("<bytes>", img, extension=suffix)
+    from ..io.files import write_bytes_safely  # here: importing torch4dtree.io imports torch
+
     return write_bytes_safely(path, data, overwrite)
 
 
@@ -704,6 +876,8 @@ def save_video(path: str | Path, frames: np.ndarray, fps: float = 4.0, overwrite
         raise ValueError(f"{path}: video files must end in {', '.join(VIDEO_SUFFIXES)} (use save_frames for PNGs)")
     if path.exists() and not overwrite:
         raise FileExistsError(f"{path} exists; pass overwrite=True (--overwrite) to replace it")
+    from ..io.files import publish_file, temporary_path, write_bytes_safely  # here: torch4dtree.io imports torch
+
     if suffix == ".gif":
         return write_bytes_safely(path, _gif_bytes(arr, fps), overwrite)
     import imageio_ffmpeg
@@ -717,10 +891,13 @@ def save_video(path: str | Path, frames: np.ndarray, fps: float = 4.0, overwrite
             macro_block_size=1, quality=None, ffmpeg_log_level="error",
             output_params=["-crf", "18", "-preset", "veryfast", "-movflags", "+faststart"],
         )
-        writer.send(None)
-        for f in arr:
-            writer.send(f.tobytes())
-        writer.close()
+        try:
+            writer.send(None)
+            for f in arr:
+                writer.send(f.tobytes())
+            writer.close()
+        except (OSError, RuntimeError) as e:  # ffmpeg's messages name the hidden temporary file
+            raise type(e)(f"{path}: cannot encode the video: {str(e).replace(str(tmp), str(path))}") from None
         publish_file(tmp, path, overwrite)
     finally:
         tmp.unlink(missing_ok=True)

@@ -7,9 +7,10 @@ from typing import Any
 
 import numpy as np
 
-# Layer colours of the paper's figures: red main branch, blue, yellow, purple, then green, orange, cyan.
+# Layer colours of the paper's figures: red main branch, blue, yellow (deep enough to read on white), purple,
+# then green, orange, cyan.
 LAYER_COLORS: np.ndarray = np.array(
-    [[214, 39, 40], [31, 94, 214], [240, 196, 25], [148, 62, 184], [44, 160, 44], [255, 127, 14], [23, 190, 207]],
+    [[214, 39, 40], [31, 94, 214], [230, 175, 0], [148, 62, 184], [44, 160, 44], [255, 127, 14], [23, 190, 207]],
     dtype=np.uint8,
 )
 # Correspondence colours (label l -> LABEL_PALETTE[l % 20]): distinct, saturated, no grey.
