@@ -43,9 +43,8 @@ def _read(folder: str, options: object) -> object:
 
 def run(args: argparse.Namespace) -> int:
     from ..io import write_sequence
-    from ..temporal import register4d
-
     from ..render import IMAGE_SUFFIXES, VIDEO_SUFFIXES
+    from ..temporal import register4d
 
     image = check_output_file(Path(args.image), args.overwrite, IMAGE_SUFFIXES + VIDEO_SUFFIXES, "--image") \
         if args.image else None  # fail before the work
