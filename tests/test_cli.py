@@ -219,8 +219,10 @@ def test_info_columns_stay_aligned_with_long_rows():
     assert all(row[start - 1] == " " and row[start] != " " for row in rows)
 
 
-def test_config_default_T_matches_the_trees_default():
-    from torch4dtree.config import Config
+def test_config_literals_match_the_trees_module():
+    """config.py keeps these literal so that it never imports torch; they must agree with the tree code."""
+    from torch4dtree.config import HIERARCHIES, Config
+    from torch4dtree.trees import skeleton
     from torch4dtree.trees.structures import DEFAULT_T
 
-    assert Config().T == DEFAULT_T
+    assert Config().T == DEFAULT_T and HIERARCHIES == skeleton.HIERARCHIES

@@ -13,8 +13,6 @@ import json
 import time
 from pathlib import Path
 
-import torch
-
 from .options import UsageError, add_config_arguments, check_output_file, config_from_args, int_at_least
 
 
@@ -27,8 +25,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--steps", type=int_at_least(2), default=5, metavar="N",
                    help="4D trees along the geodesic for --out / --image (default: %(default)s)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.add_argument("--out", default=None, help="folder for the registered 4D trees and the geodesic (sequence folders)")
-    p.add_argument("--image", default=None, help="the 4D geodesic as a grid picture (.png) or video (.gif, .mp4)")
+    p.add_argument("--out", default=None, metavar="DIR",
+                   help="write the registered 4D trees and the geodesic as sequence folders into this folder (created "
+                        "if missing; its parent must exist) (default: nothing written)")
+    p.add_argument("--image", default=None, metavar="FILE",
+                   help="the 4D geodesic as a grid picture (.png) or video (.gif, .mp4); its folder must exist "
+                        "(default: none)")
     p.add_argument("--overwrite", action="store_true", help="replace existing files in --out / --image")
 
 
@@ -36,18 +38,24 @@ def _read(folder: str, options: object) -> object:
     from ..io import read_sequence
 
     path = Path(folder)
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no such folder")
     if not path.is_dir():
-        raise UsageError(f"{path}: not a sequence folder (expected a folder of frame files)")
+        raise UsageError(f"{path} is a file; register4d takes two sequence folders (one frame file per time)")
     return read_sequence(path, options).sequence
 
 
 def run(args: argparse.Namespace) -> int:
+    import torch  # here, not at import: building the parser (--help) must not import torch
+
     from ..io import write_sequence
     from ..render import IMAGE_SUFFIXES, VIDEO_SUFFIXES
     from ..temporal import register4d
 
     image = check_output_file(Path(args.image), args.overwrite, IMAGE_SUFFIXES + VIDEO_SUFFIXES, "--image") \
         if args.image else None  # fail before the work
+    if args.out and not Path(args.out).parent.is_dir():
+        raise UsageError(f"--out {args.out}: the folder {Path(args.out).parent} does not exist (create it first)")
     cfg = config_from_args(args)
     opts = dataclasses.replace(cfg.load_options(), dtype=torch.float64)
     a, b = _read(args.reference, opts), _read(args.moving, opts)
@@ -68,8 +76,9 @@ def run(args: argparse.Namespace) -> int:
         from ..render import render_grid, save_image, save_video
 
         rows = [f"tau = {k / (args.steps - 1):.2f}" for k in range(args.steps)]
-        title = (f"{Path(args.reference).name} -> {Path(args.moving).name}: 4D distance "
-                 f"{res.distance_before:.3g} -> {res.distance_after_spatial:.3g} -> {res.distance_after_temporal:.3g}")
+        title = (f"{Path(args.reference).name}  ->  {Path(args.moving).name}\n4D distance "
+                 f"{res.distance_before:.3g} (before)  ->  {res.distance_after_spatial:.3g} (space)  ->  "
+                 f"{res.distance_after_temporal:.3g} (time)")
         if image.suffix.lower() in VIDEO_SUFFIXES:
             frames = render_grid(path, row_labels=rows, title=title, video=True, color="label")
             written.append(str(save_video(image, frames, fps=8, overwrite=args.overwrite)))
