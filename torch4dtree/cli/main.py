@@ -20,6 +20,9 @@ COMMANDS = (
     ("info", "info", "summarise a tree file, a sequence folder or a dataset folder"),
     ("register", "register", "register two trees (SWC or .mat): distances, correspondence, geodesic"),
     ("register4d", "register4d", "register two 4D trees (sequence folders) in space and time"),
+    ("fit", "fit", "fit the generative model of 4D trees on a dataset folder (writes a run directory)"),
+    ("sample", "sample", "generate 4D trees from a fitted model: sequence folders and videos"),
+    ("forecast", "forecast", "complete a partly observed 4D tree with a fitted model"),
     ("render", "render", "render a tree file, sequence or dataset folder to PNG / GIF / MP4"),
     ("benchmark", "benchmark", "time the registration engine"),
 )
