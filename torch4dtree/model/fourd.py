@@ -24,7 +24,7 @@ from ..temporal.population import Population
 from ..temporal.registration import time_warp_trajectory
 from ..trees.structures import Trees, TreeSequence
 from .sampler import TruncatedNormalSampler
-from .trajectory import TrajectoryMean, TrajectoryPCA
+from .trajectory import TrajectoryMean, TrajectoryPCA, flatten_srvf
 
 __all__ = ["FourDTreeModel", "Forecast", "ModelOutput", "Score"]
 
@@ -47,11 +47,14 @@ class ModelOutput(NamedTuple):
 
 class Score(NamedTuple):
     """:meth:`FourDTreeModel.score`: ``mahalanobis`` = ``|z|`` over the modes; ``residual`` the 4D distance outside
-    the modes; ``distance`` the registered 4D distance to the mean; ``coefficients (m,)``."""
+    the modes; ``distance`` the registered 4D distance to the mean; ``outside`` the root mean square over frames of
+    the tree distance carried by branches that match no slot of the layout (dropped by the encoding: a plant
+    unlike the training ones shows up here); ``coefficients (m,)``."""
 
     mahalanobis: float
     residual: float
     distance: float
+    outside: float
     coefficients: Tensor
 
 
@@ -150,7 +153,7 @@ class FourDTreeModel(nn.Module):
         reg = self.mean.registered_
         t_mean = time.perf_counter() - t0
         t0 = time.perf_counter()
-        self.pca.fit(reg.registered[:, 0], reg.q_registered)
+        self.pca.fit(reg.registered[:, 0], reg.q_registered, center=flatten_srvf(self.mean.start, self.mean.q))
         t_pca = time.perf_counter() - t0
         self.sampler.n_modes = self.pca.n_modes
         spans = self.population.time_spans
@@ -231,7 +234,8 @@ class FourDTreeModel(nn.Module):
         enc = self.population.transform(sequence)
         reg = self.mean.register(enc.trajectory[None])
         z, residual = self.pca.project(reg.registered[:, 0], reg.q_registered)
-        return Score(float(z.norm()), float(residual[0]), float(reg.distance[0]), z[0])
+        outside = float(enc.dropped_sq_norm.mean().sqrt())
+        return Score(float(z.norm()), float(residual[0]), float(reg.distance[0]), outside, z[0])
 
     def forecast(self, partial: TreeSequence, times: Sequence[float] | Tensor, n: int = 0,
                  generator: torch.Generator | None = None, decode: bool = True) -> Forecast:

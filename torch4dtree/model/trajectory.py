@@ -157,15 +157,21 @@ class TrajectoryPCA(FittedModule):
         if self.n_modes == 0:
             raise NotFittedError("TrajectoryPCA is not fitted")
 
-    def fit(self, start: Tensor, q: Tensor) -> TrajectoryPCA:
-        """Fit on ``N >= 2`` registered trajectories: ``start (N, k)``, ``q (N, n_t - 1, k)``. Returns ``self``."""
+    def fit(self, start: Tensor, q: Tensor, center: Tensor | None = None) -> TrajectoryPCA:
+        """Fit on ``N >= 2`` registered trajectories: ``start (N, k)``, ``q (N, n_t - 1, k)``. Returns ``self``.
+
+        ``center (k * n_t,)``: the flattened 4D mean to centre on (the Karcher mean, so that ``z = 0`` is exactly
+        it: the PCA of the tangent space at the mean); default the average of the inputs.
+        """
         if q.dim() != 3 or start.shape != (q.shape[0], q.shape[2]):
             raise ValueError(f"start must be (N, k) and q (N, n_t - 1, k), got {tuple(start.shape)}, {tuple(q.shape)}")
         N = q.shape[0]
         if N < 2:
             raise ValueError(f"PCA needs at least 2 trajectories, got {N}")
         X = flatten_srvf(start, q).detach()
-        mean = X.mean(0)
+        mean = X.mean(0) if center is None else center.detach().to(X)
+        if mean.shape != X.shape[1:]:
+            raise ValueError(f"center must be ({X.shape[1]},), got {tuple(mean.shape)}")
         _, sing, Vh = torch.linalg.svd(X - mean, full_matrices=False)
         var = sing.square() / (N - 1)
         total = float(var.sum())
