@@ -15,14 +15,18 @@ _CURVES = ("curve_length", "dp_warp", "elastic_distance", "inverse_srvf", "regis
            "srvf_sq_norm", "warp_curve", "warp_srvf")
 _TREES = ("AlignedTrees", "TreeError", "TreeSequence", "Trees", "cycle_consistency", "geodesic", "pairwise_distances",
           "register_to_reference", "register_trees")
+_MODEL = ("FourDTreeModel", "load")
+_TEMPORAL = ("register4d",)
 # public name -> the subpackage that defines it
-_EXPORTS = {**dict.fromkeys(_CURVES, "curves"), **dict.fromkeys(_TREES, "trees")}
-_SUBPACKAGES = ("bench", "cli", "config", "curves", "data", "io", "render", "trees")
+_EXPORTS = {**dict.fromkeys(_CURVES, "curves"), **dict.fromkeys(_TREES, "trees"), **dict.fromkeys(_MODEL, "model"),
+            **dict.fromkeys(_TEMPORAL, "temporal")}
+_SUBPACKAGES = ("bench", "cli", "config", "curves", "data", "io", "model", "render", "space", "temporal", "trees")
 
 __all__ = [
-    "AlignedTrees", "TreeError", "TreeSequence", "Trees", "curve_length", "cycle_consistency", "dp_warp",
-    "elastic_distance", "geodesic", "inverse_srvf", "pairwise_distances", "register_curves", "register_to_reference",
-    "register_trees", "srvf", "srvf_inner", "srvf_sq_norm", "warp_curve", "warp_srvf",
+    "AlignedTrees", "FourDTreeModel", "TreeError", "TreeSequence", "Trees", "curve_length", "cycle_consistency",
+    "dp_warp", "elastic_distance", "geodesic", "inverse_srvf", "load", "pairwise_distances", "register4d",
+    "register_curves", "register_to_reference", "register_trees", "srvf", "srvf_inner", "srvf_sq_norm", "warp_curve",
+    "warp_srvf",
 ]
 
 if TYPE_CHECKING:  # what static tools see; at run time __getattr__ imports on demand
@@ -38,6 +42,8 @@ if TYPE_CHECKING:  # what static tools see; at run time __getattr__ imports on d
         warp_curve,
         warp_srvf,
     )
+    from .model import FourDTreeModel, load
+    from .temporal import register4d
     from .trees import (
         AlignedTrees,
         TreeError,

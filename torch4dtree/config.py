@@ -41,6 +41,16 @@ class Config:
     rotation: str = "none"
     lambdas: tuple[float, float, float] = (1.0, 1.0, 1.0)  # (lm, ls, lp)
     neighbourhood: int = 4  # DP slopes up to 4: fastest and most cycle-consistent on Pheno4D at T = 64
+    # the generative model (SPEC §5; torch4dtree.model.FourDTreeModel)
+    n_t: int = 32  # common time samples of the trajectories
+    tree_components: int | None = None  # tree-PCA components (None: the share tree_variance)
+    tree_variance: float = 0.99
+    modes: int | None = None  # trajectory-PCA modes (None: the share mode_variance)
+    mode_variance: float = 0.95
+    c: float = 3.0  # sampler truncation: coefficients in [-c, c]
+    medoid_candidates: int = 3  # candidates for the population's reference 4D tree
+    mean_iters: int = 10  # rounds of the 4D Karcher mean
+    render_size: int = 256  # pixels per cell of the figures and videos
     notes: str = field(default="", compare=False)
 
     def __post_init__(self) -> None:
@@ -55,6 +65,27 @@ class Config:
             raise _error(f"lambdas must be (lm > 0, ls > 0, lp >= 0), got {self.lambdas}")
         if self.neighbourhood < 1:
             raise _error(f"neighbourhood must be at least 1, got {self.neighbourhood}")
+        self._check_model_settings()
+
+    def _check_model_settings(self) -> None:
+        for name in ("n_t", "medoid_candidates", "mean_iters", "render_size"):
+            if getattr(self, name) < (2 if name == "n_t" else 1):
+                raise _error(f"{name} must be at least {2 if name == 'n_t' else 1}, got {getattr(self, name)}")
+        for name in ("tree_components", "modes"):
+            if getattr(self, name) is not None and getattr(self, name) < 1:
+                raise _error(f"{name} must be null or at least 1, got {getattr(self, name)}")
+        for name in ("tree_variance", "mode_variance"):
+            if not 0 < getattr(self, name) <= 1:
+                raise _error(f"{name} must be in (0, 1], got {getattr(self, name)}")
+        if not self.c > 0:
+            raise _error(f"c must be positive, got {self.c}")
+
+    def model_args(self) -> dict:
+        """The :class:`~torch4dtree.model.FourDTreeModel` constructor arguments these settings give."""
+        return {"lambdas": list(self.lambdas), "rotation": self.rotation, "n_t": self.n_t,
+                "tree_components": self.tree_components, "tree_variance": self.tree_variance,
+                "medoid_candidates": self.medoid_candidates, "registration": {"neighbourhood": self.neighbourhood},
+                "modes": self.modes, "mode_variance": self.mode_variance, "c": self.c, "mean_iters": self.mean_iters}
 
     def load_options(self):  # noqa: ANN201 - io.LoadOptions (io imports structures; keep this module light)
         """The :class:`~torch4dtree.io.LoadOptions` with every setting the two share taken from here."""

@@ -41,7 +41,8 @@ from .registration import TemporalRegistration, geodesic4d, register_trajectorie
 from .trajectory import resample_trajectory, trajectory_srvf
 from .within import AlignedSequence, register_sequence
 
-__all__ = ["SpatiotemporalRegistration", "combine_sequences", "register4d", "representative_tree"]
+__all__ = ["SpatiotemporalRegistration", "combine_many", "combine_sequences", "place_sequence", "register4d",
+           "representative_tree"]
 
 DEFAULT_NT = 32
 
@@ -74,9 +75,93 @@ def _warp_parameter(s: Tensor, gamma: Tensor) -> Tensor:
     return torch.as_tensor(np.interp(s.detach().cpu().numpy(), g, grid.cpu().numpy()), dtype=s.dtype, device=s.device)
 
 
+def place_sequence(mov: AlignedSequence, slot_of: Sequence[int], num_slots: int, gamma: Tensor,
+                   rotation: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """All frames of ``mov`` written into a layout of ``num_slots`` slots, ``mov`` slot ``k`` going to ``slot_of[k]``.
+
+    Args:
+        slot_of: ``S_mov`` target slots (distinct; a parent's target is the parent of its child's target).
+        gamma: ``(S_mov, T)`` warp of each ``mov`` slot (applied to every frame's branch in that slot).
+        rotation: ``(d, d)`` applied to ``mov``'s SRVFs (row vectors, ``x @ R.T``).
+
+    Returns:
+        ``q (n, num_slots, M, d)``, ``s (n, num_slots)`` (0 in slots ``mov`` does not reach), ``present`` and
+        ``source`` (``mov``'s own slot, ``-1`` elsewhere) ``(n, num_slots)``.
+    """
+    ma = mov.aligned
+    n_m, S_m, M, d = ma.q.shape
+    dev, dt = ma.q.device, ma.q.dtype
+    mov_parent = ma.slot_parent.tolist()
+    q = torch.zeros(n_m, num_slots, M, d, dtype=dt, device=dev)
+    s = torch.zeros(n_m, num_slots, dtype=dt, device=dev)
+    present = torch.zeros(n_m, num_slots, dtype=torch.bool, device=dev)
+    source = torch.full((n_m, num_slots), -1, dtype=torch.long, device=dev)
+    g = gamma.to(device=dev, dtype=dt)
+    R = rotation.to(device=dev, dtype=dt)
+    idx = torch.as_tensor(list(slot_of), dtype=torch.long, device=dev)
+    qm = warp_srvf(ma.q.reshape(n_m * S_m, M, d), g.repeat(n_m, 1)).reshape(n_m, S_m, M, d) @ R.T
+    q[:, idx] = qm * ma.present[..., None, None]
+    # a child's parameter moves with its parent's warp
+    sm = ma.s.clone()
+    for k in range(1, S_m):
+        sm[:, k] = _warp_parameter(ma.s[:, k], g[mov_parent[k]])
+    s[:, idx] = sm
+    present[:, idx] = ma.present
+    source[:, idx] = torch.arange(S_m, device=dev)
+    return q, s, present, source
+
+
+def combine_many(ref: AlignedSequence, movs: Sequence[AlignedSequence], matches: Sequence[Sequence[tuple[int, int]]],
+                 gammas: Sequence[Tensor], rotations: Sequence[Tensor],
+                 lambdas: tuple[float, float, float]) -> AlignedTrees:
+    """All frames of ``ref`` then of every ``movs[i]`` in one union layout, given a correspondence of each onto ``ref``.
+
+    Args:
+        matches: per moving sequence, ``[(mov slot, ref slot), ...]`` (a partial matching that maps parents to
+            parents).
+        gammas: per moving sequence, ``(S_mov, T)`` warp of each of its slots.
+        rotations: per moving sequence, ``(d, d)`` applied to its SRVFs (row vectors, ``x @ R.T``).
+        lambdas: metric weights of the returned layout.
+
+    Returns:
+        :class:`AlignedTrees` of ``len(ref) + sum(len(m))`` trees: ``ref``'s slots first (same order), then, for each
+        moving sequence in turn, a slot for every one of its unmatched slots (child of its parent's slot).
+        ``source`` is the sequence's own slot.
+    """
+    if not (len(movs) == len(matches) == len(gammas) == len(rotations)):
+        raise ValueError(f"one matching, warp and rotation per moving sequence: got {len(movs)} sequences, "
+                         f"{len(matches)} matchings, {len(gammas)} warps, {len(rotations)} rotations")
+    ra = ref.aligned
+    slot_parent, slot_depth = ra.slot_parent.tolist(), ra.slot_depth.tolist()
+    targets: list[list[int]] = []
+    for mov, match in zip(movs, matches):
+        slot_of = dict(match)
+        mov_parent = mov.aligned.slot_parent.tolist()
+        for k in range(len(mov_parent)):  # parents first, so a parent's slot exists
+            if k not in slot_of:
+                slot_of[k] = len(slot_parent)
+                parent = slot_of[mov_parent[k]] if mov_parent[k] >= 0 else -1
+                slot_parent.append(parent)
+                slot_depth.append(slot_depth[parent] + 1)
+        targets.append([slot_of[k] for k in range(len(mov_parent))])
+    S = len(slot_parent)
+    n_r, S_r = ra.q.shape[:2]
+    dev = ra.q.device
+    ident = torch.eye(ra.q.shape[3], dtype=ra.q.dtype, device=dev)
+    grid = torch.linspace(0, 1, ra.T, dtype=ra.q.dtype, device=dev).expand(S_r, -1)
+    parts = [place_sequence(ref, list(range(S_r)), S, grid, ident)]
+    parts += [place_sequence(m, t, S, g, R) for m, t, g, R in zip(movs, targets, gammas, rotations)]
+    q, s, present, source = (torch.cat([p[i] for p in parts]) for i in range(4))
+    s[:n_r, :S_r] = ra.s  # the reference's own parameters, exactly (no warp round trip)
+    q[:n_r, :S_r] = ra.q
+    root = torch.cat([ra.root] + [m.aligned.root for m in movs])
+    return AlignedTrees(q, s, present, root, torch.tensor(slot_parent, device=dev),
+                        torch.tensor(slot_depth, device=dev), source, lambdas)
+
+
 def combine_sequences(ref: AlignedSequence, mov: AlignedSequence, matches: Sequence[tuple[int, int]],
                       gamma: Tensor, rotation: Tensor, lambdas: tuple[float, float, float]) -> AlignedTrees:
-    """All frames of ``ref`` then ``mov`` in one union layout, given a correspondence of their slots.
+    """All frames of ``ref`` then ``mov`` in one union layout (:func:`combine_many` with one moving sequence).
 
     Args:
         matches: ``[(mov slot, ref slot), ...]`` (a partial matching that maps parents to parents).
@@ -88,41 +173,7 @@ def combine_sequences(ref: AlignedSequence, mov: AlignedSequence, matches: Seque
         :class:`AlignedTrees` of ``len(ref) + len(mov)`` trees: ``ref``'s slots first (same order), then a slot
         for every unmatched ``mov`` slot (child of its parent's slot). ``source`` is the sequence's own slot.
     """
-    ra, ma = ref.aligned, mov.aligned
-    n_r, S_r, M, d = ra.q.shape
-    n_m, S_m = ma.q.shape[:2]
-    slot_of = dict(matches)
-    slot_parent, slot_depth = ra.slot_parent.tolist(), ra.slot_depth.tolist()
-    mov_parent = ma.slot_parent.tolist()
-    for k in range(S_m):  # parents first, so a parent's slot exists
-        if k not in slot_of:
-            slot_of[k] = len(slot_parent)
-            parent = slot_of[mov_parent[k]] if mov_parent[k] >= 0 else -1
-            slot_parent.append(parent)
-            slot_depth.append(slot_depth[parent] + 1)
-    S = len(slot_parent)
-    dev, dt = ra.q.device, ra.q.dtype
-    q = torch.zeros(n_r + n_m, S, M, d, dtype=dt, device=dev)
-    s = torch.zeros(n_r + n_m, S, dtype=dt, device=dev)
-    present = torch.zeros(n_r + n_m, S, dtype=torch.bool, device=dev)
-    source = torch.full((n_r + n_m, S), -1, dtype=torch.long, device=dev)
-    q[:n_r, :S_r], s[:n_r, :S_r], present[:n_r, :S_r] = ra.q, ra.s, ra.present
-    source[:n_r, :S_r] = torch.arange(S_r, device=dev)
-    g = gamma.to(device=dev, dtype=dt)
-    R = rotation.to(device=dev, dtype=dt)
-    idx = torch.tensor([slot_of[k] for k in range(S_m)], device=dev)
-    qm = warp_srvf(ma.q.reshape(n_m * S_m, M, d), g.repeat(n_m, 1)).reshape(n_m, S_m, M, d) @ R.T
-    q[n_r:, idx] = qm * ma.present[..., None, None]
-    # a child's parameter moves with its parent's warp
-    sm = ma.s.clone()
-    for k in range(1, S_m):
-        sm[:, k] = _warp_parameter(ma.s[:, k], g[mov_parent[k]])
-    s[n_r:, idx] = sm
-    present[n_r:, idx] = ma.present
-    source[n_r:, idx] = torch.arange(S_m, device=dev)
-    root = torch.cat([ra.root, ma.root])
-    return AlignedTrees(q, s, present, root, torch.tensor(slot_parent, device=dev),
-                        torch.tensor(slot_depth, device=dev), source, lambdas)
+    return combine_many(ref, [mov], [matches], [gamma], [rotation], lambdas)
 
 
 class SpatiotemporalRegistration(NamedTuple):

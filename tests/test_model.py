@@ -1,0 +1,264 @@
+"""The generative model (SPEC §5): sampler, 4D mean and modes, the bundled model, checkpoints, forecasting."""
+
+from __future__ import annotations
+
+import math
+import os
+
+import pytest
+import torch
+
+from torch4dtree.model import (
+    CheckpointError,
+    FourDTreeModel,
+    TrajectoryMean,
+    TrajectoryPCA,
+    TruncatedNormalSampler,
+    load,
+    sequence_validity,
+    truncated_normal_variance,
+)
+from torch4dtree.temporal import geodesic4d, register_trajectories, time_warp_trajectory, trajectory_srvf
+
+N_T = 12
+
+
+def _trajectories(n: int, n_t: int = 24, k: int = 3, seed: int = 0) -> torch.Tensor:
+    """Smooth random trajectories ``(n, n_t, k)``."""
+    g = torch.Generator().manual_seed(seed)
+    t = torch.linspace(0, 1, n_t, dtype=torch.float64)[:, None]
+    a = torch.randn(n, 1, k, generator=g, dtype=torch.float64)
+    b = torch.randn(n, 1, k, generator=g, dtype=torch.float64)
+    c = torch.randn(n, 1, k, generator=g, dtype=torch.float64)
+    return a + b * t + c * torch.sin(3 * t)
+
+
+# ----------------------------------------------------------------------------- sampler
+
+
+def test_sampler_exact_truncated_normal() -> None:
+    s = TruncatedNormalSampler(4, c=1.5)
+    z = s(100_000, generator=torch.Generator().manual_seed(0))
+    assert z.shape == (100_000, 4) and z.dtype == torch.float64
+    assert float(z.abs().max()) <= 1.5
+    var = truncated_normal_variance(1.5)
+    assert var == pytest.approx(0.5507, abs=1e-3)  # tabulated value for c = 1.5
+    # per-mode variance within 4 standard errors (var of z^2 <= E z^4 <= c^2 var)
+    se = math.sqrt(1.5 ** 2 * var / 100_000)
+    assert torch.allclose(z.var(0), torch.full((4,), var, dtype=torch.float64), atol=4 * se)
+    # not clamping: no probability mass piles up at the bounds
+    assert float((z.abs() > 1.5 - 1e-3).double().mean()) < 1e-3
+    assert torch.equal(z[:5], s(5, generator=torch.Generator().manual_seed(0)))
+
+
+def test_sampler_rejects_bad_settings() -> None:
+    with pytest.raises(ValueError, match="c must be"):
+        TruncatedNormalSampler(3, c=0.0)
+    with pytest.raises(ValueError, match="n_modes"):
+        TruncatedNormalSampler(0)
+
+
+# ----------------------------------------------------------------------------- 4D mean and PCA
+
+
+def test_mean_of_copies_is_the_tree_with_zero_variance() -> None:
+    a = _trajectories(1)
+    mean = TrajectoryMean().fit(a.expand(3, -1, -1))
+    assert torch.allclose(mean.trajectory, a[0], atol=1e-10)
+    assert mean.energies_[-1] < 1e-18
+    reg = mean.registered_
+    pca = TrajectoryPCA().fit(reg.registered[:, 0], reg.q_registered)
+    assert float(pca.explained_variance.abs().max()) < 1e-20
+    z = torch.randn(5, pca.n_modes, dtype=torch.float64)
+    assert torch.allclose(pca.trajectories(z), a[0].expand(5, -1, -1), atol=1e-10)
+
+
+def test_mean_of_two_registered_trees_is_the_geodesic_midpoint() -> None:
+    a, b = _trajectories(2, seed=1)
+    b_star = register_trajectories(a, b).registered
+    mean = TrajectoryMean(max_iters=5).fit(torch.stack([a, b_star]))
+    mid = geodesic4d(*trajectory_srvf(a), *trajectory_srvf(b_star), steps=3)[1]
+    scale = float((a - b_star).abs().max())
+    assert float((mean.trajectory - mid).abs().max()) < 0.02 * scale
+    # energies never increase
+    e = mean.energies_
+    assert all(y <= x * (1 + 1e-9) for x, y in zip(e, e[1:]))
+
+
+def test_trajectory_pca_reconstructs_and_modes_follow_the_formula() -> None:
+    a = _trajectories(6, seed=2)
+    mean = TrajectoryMean().fit(a)
+    reg = mean.registered_
+    pca = TrajectoryPCA(variance=1.0).fit(reg.registered[:, 0], reg.q_registered)
+    z, residual = pca.project(reg.registered[:, 0], reg.q_registered)
+    assert float(residual.max()) < 1e-8  # all modes kept: exact
+    assert torch.allclose(pca.trajectories(z), reg.registered, atol=1e-8)
+    # standardised coefficients: unit sample variance along every mode
+    assert torch.allclose(z.var(0), torch.ones(pca.n_modes, dtype=torch.float64), atol=1e-8)
+    modes = pca.modes(torch.tensor([-2.0, 0.0, 2.0], dtype=torch.float64), modes=2)
+    x = pca.mean + 2 * pca.scales()[1] * pca.components[1]
+    from torch4dtree.model import unflatten_srvf
+    from torch4dtree.temporal import trajectory_from_srvf
+
+    assert torch.allclose(modes[1, 2], trajectory_from_srvf(*unflatten_srvf(x, a.shape[1], a.shape[2])), atol=1e-10)
+
+
+# ----------------------------------------------------------------------------- the bundled model
+
+
+@pytest.fixture(scope="module")
+def plants() -> list:
+    from torch4dtree.data import synthetic_dataset
+
+    return [p.sequence for p in synthetic_dataset("tomato", plants=4, seed=0, n_frames=4, T=12)]
+
+
+@pytest.fixture(scope="module")
+def model(plants: list) -> FourDTreeModel:
+    return FourDTreeModel(n_t=N_T, medoid_candidates=2).fit(plants[:3])
+
+
+def test_model_fit_shapes_and_report(model: FourDTreeModel) -> None:
+    k = model.population.k
+    assert model.population.trajectories.shape == (3, N_T, k)
+    out = model(torch.zeros(2, model.n_modes, dtype=torch.float64))
+    assert out.trajectory.shape == (2, N_T, k)
+    assert torch.allclose(out.trajectory[0], model.mean.trajectory, atol=1e-10)  # z = 0 is the mean
+    assert out.features.shape[:2] == (2, N_T)
+    spans = model.population.time_spans
+    assert out.times[0] == pytest.approx(float(spans[:, 0].mean()))
+    assert out.times[-1] == pytest.approx(float(spans[:, 1].mean()))
+    r = model.report_
+    assert len(r["temporal_distance_after"]) == 3
+    assert all(a <= b + 1e-9 for a, b in zip(r["temporal_distance_after"], r["temporal_distance_before"]))
+
+
+def test_copies_of_one_4d_tree(plants: list) -> None:
+    m = FourDTreeModel(n_t=N_T, medoid_candidates=1).fit([plants[0], plants[0]])
+    alpha = m.population.trajectories
+    assert torch.allclose(alpha[0], alpha[1], atol=1e-9)
+    assert torch.allclose(m.mean.trajectory, alpha[0], atol=1e-9)
+    assert float(m.pca.explained_variance.max()) < 1e-16
+
+
+def test_samples_are_valid_and_reproducible(model: FourDTreeModel, tmp_path) -> None:
+    g = torch.Generator().manual_seed(7)
+    z = model.sample_coefficients(3, g)
+    assert float(z.abs().max()) <= float(model.sampler.c)
+    seqs = model.decode(z[:2])
+    S = model.population.pca.num_slots
+    for s in seqs:
+        assert len(s) == N_T and s.name.startswith("sample_")
+        assert sequence_validity(s) == []
+        counts = torch.bincount(s.frames.tree_index, minlength=N_T)
+        assert int(counts.max()) <= S
+        assert bool((s.frames.branch_lengths() >= 0).all())
+        assert bool((s.frames.label >= 0).all()) and int(s.frames.label.max()) < S
+    # the same seed: same samples after .to() and after save / load
+    again = model.to("cpu").to(torch.float64).sample_coefficients(3, torch.Generator().manual_seed(7))
+    assert torch.equal(z, again)
+    path = tmp_path / "model.pt"
+    model.save(str(path))
+    loaded = load(path)
+    z2 = loaded.sample_coefficients(3, torch.Generator().manual_seed(7))
+    assert torch.equal(z, z2)
+    assert torch.equal(loaded(z2).trajectory, model(z).trajectory)
+    raw = torch.load(path, weights_only=True)
+    assert raw["format"] == "torch4dtree.FourDTreeModel" and raw["version"] == 1 and "args" in raw
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
+def test_model_on_gpu(model: FourDTreeModel) -> None:
+    z = model.sample_coefficients(3, torch.Generator().manual_seed(1))
+    g = model.to("cuda")
+    try:
+        zc = g.sample_coefficients(3, torch.Generator().manual_seed(1))
+        assert zc.device.type == "cuda" and torch.equal(zc.cpu(), z)
+        assert torch.allclose(g(zc).trajectory.cpu(), model.to("cpu")(z).trajectory, atol=1e-10)
+    finally:
+        model.to("cpu")
+
+
+def test_forward_is_differentiable(model: FourDTreeModel) -> None:
+    z = (0.3 * torch.randn(1, model.n_modes, dtype=torch.float64)).requires_grad_()
+    assert torch.autograd.gradcheck(model.trajectories, (z,), eps=1e-6, atol=1e-5)
+    # optimise coefficients towards a target trajectory through the model
+    target = model(torch.full((1, model.n_modes), 0.5, dtype=torch.float64)).trajectory.detach()
+    x = torch.zeros(1, model.n_modes, dtype=torch.float64, requires_grad=True)
+    opt = torch.optim.LBFGS([x], max_iter=20)
+
+    def closure() -> torch.Tensor:
+        opt.zero_grad()
+        loss = (model(x).trajectory - target).square().sum()
+        loss.backward()
+        return loss
+
+    opt.step(closure)
+    assert torch.allclose(x.detach(), torch.full_like(x, 0.5), atol=1e-3)
+
+
+def test_encode_and_score(model: FourDTreeModel, plants: list) -> None:
+    z = model.encode(plants[1])
+    assert z.shape == (model.n_modes,)
+    typical = model.score(plants[1])
+    big = plants[1]
+    from torch4dtree.trees.structures import TreeSequence
+
+    abnormal = TreeSequence(big.frames.with_points(big.frames.points * 3), big.times, "giant")
+    odd = model.score(abnormal)
+    # three times larger: lengths x3, so SRVF-based distances grow by about sqrt(3)
+    assert odd.distance > 1.3 * typical.distance
+    assert odd.outside > 1.5 * typical.outside
+
+
+def test_forecast_shapes(model: FourDTreeModel, plants: list) -> None:
+    seq = plants[3]
+    f = model.forecast(seq[[0, 1]], seq.times[2:], n=2, generator=torch.Generator().manual_seed(0), decode=False)
+    assert f.trajectory.shape == (2, model.population.k)
+    assert f.sample_trajectories.shape == (2, 2, model.population.k)
+    assert f.covariance.shape == (model.n_modes, model.n_modes)
+    assert bool((torch.linalg.eigvalsh(f.covariance) > 0).all())
+    # conditioning shrinks the uncertainty below the prior's
+    assert float(torch.linalg.eigvalsh(f.covariance).max()) <= 1 + 1e-9
+
+
+@pytest.mark.skipif(os.environ.get("TORCH4DTREE_SLOW") != "1", reason="slow (set TORCH4DTREE_SLOW=1): ~1-2 min")
+def test_forecast_beats_baselines() -> None:
+    from torch4dtree.data import synthetic_dataset
+
+    seqs = [p.sequence for p in synthetic_dataset("tomato", plants=10, seed=3, n_frames=6, T=16)]
+    m = FourDTreeModel(n_t=16).fit(seqs[:7])
+    errs = {"forecast": 0.0, "last": 0.0, "mean": 0.0}
+    for h in seqs[7:]:
+        half = len(h) // 2
+        truth = m.population.transform(h).frame_coefficients[half:]
+        f = m.forecast(h[list(range(half))], h.times[half:], decode=False)
+        last = m.population.transform(h[list(range(half))]).frame_coefficients[-1]
+        u = ((h.times[half:] - h.times[0]) / float(m.duration)).clamp(0, 1)
+        pop = time_warp_trajectory(m.mean.trajectory, u.to(m.mean.trajectory))
+        for key, x in (("forecast", f.trajectory), ("last", last[None]), ("mean", pop)):
+            errs[key] += float((x - truth).norm(dim=-1).mean())
+    assert errs["forecast"] < errs["last"] and errs["forecast"] < errs["mean"], errs
+
+
+# ----------------------------------------------------------------------------- checkpoints
+
+
+def test_bad_checkpoints_fail_clearly(model: FourDTreeModel, tmp_path, capsys) -> None:
+    good = tmp_path / "good.pt"
+    model.save(str(good))
+    data = good.read_bytes()
+    (tmp_path / "truncated.pt").write_bytes(data[: len(data) // 2])
+    (tmp_path / "corrupt.pt").write_bytes(bytes(range(256)) * 10)
+    torch.save({"weights": torch.zeros(3)}, tmp_path / "foreign.pt")
+    for name in ("truncated", "corrupt", "foreign", "missing"):
+        with pytest.raises(CheckpointError, match=name):
+            load(tmp_path / f"{name}.pt")
+    from torch4dtree.cli.main import main
+
+    capsys.readouterr()
+    assert main(["sample", str(tmp_path / "truncated.pt"), "--out", str(tmp_path / "s"), "--video", "none"]) == 2
+    err = capsys.readouterr().err
+    assert "not a readable torch4dtree checkpoint" in err and "Traceback" not in err
+    with pytest.raises(FileExistsError):
+        model.save(str(good))

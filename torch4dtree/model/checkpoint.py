@@ -1,0 +1,77 @@
+"""Checkpoints of :class:`FourDTreeModel` (SPEC §6): one file, readable with ``torch.load(weights_only=True)``.
+
+The file is a dict: ``format`` (:data:`FORMAT`), ``version`` (:data:`VERSION`), ``config`` (the run's settings,
+free-form JSON-like), ``args`` (the model's constructor arguments) and ``state_dict`` (tensors and plain Python
+extra states only). Anything else, including a truncated or corrupt file, raises :class:`CheckpointError` with
+the path and what is wrong.
+"""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from ..io.files import write_bytes_safely
+from ..trees.structures import TreeError
+from .fourd import FourDTreeModel
+
+__all__ = ["FORMAT", "VERSION", "CheckpointError", "load", "save_model"]
+
+FORMAT = "torch4dtree.FourDTreeModel"
+VERSION = 1
+
+
+class CheckpointError(TreeError):
+    """A file that is not a readable torch4dtree model checkpoint."""
+
+
+def save_model(model: FourDTreeModel, path: str | Path, config: dict[str, Any] | None = None,
+               overwrite: bool = False) -> Path:
+    """Write ``model`` (fitted) to ``path`` atomically; refuses an existing file unless ``overwrite``."""
+    if not isinstance(model, FourDTreeModel):
+        raise TypeError(f"expected a FourDTreeModel, got {type(model).__name__}")
+    if not model.is_fitted:
+        raise ValueError("the model is not fitted: nothing to save")
+    state = {k: v.detach().cpu() if isinstance(v, torch.Tensor) else v for k, v in model.state_dict().items()}
+    payload = {"format": FORMAT, "version": VERSION, "config": dict(config or {}), "args": dict(model.args),
+               "state_dict": state}
+    buf = io.BytesIO()
+    torch.save(payload, buf)
+    return write_bytes_safely(Path(path), buf.getvalue(), overwrite=overwrite)
+
+
+def read_checkpoint(path: str | Path) -> dict[str, Any]:
+    """The checkpoint dict, validated (format, version, fields)."""
+    path = Path(path)
+    if not path.is_file():
+        raise CheckpointError(f"{path}: no such checkpoint file")
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as e:  # noqa: BLE001 - any unpickling failure means the same thing to the user
+        raise CheckpointError(f"{path}: not a readable torch4dtree checkpoint (truncated, corrupt or another "
+                              f"format: {type(e).__name__})") from None
+    if not isinstance(payload, dict) or payload.get("format") != FORMAT:
+        raise CheckpointError(f"{path}: a torch file, but not a torch4dtree model checkpoint (format "
+                              f"{payload.get('format') if isinstance(payload, dict) else type(payload).__name__!r})")
+    if payload.get("version") != VERSION:
+        raise CheckpointError(f"{path}: checkpoint format version {payload.get('version')!r}; this torch4dtree "
+                              f"reads version {VERSION}")
+    for key, kind in (("args", dict), ("state_dict", dict), ("config", dict)):
+        if not isinstance(payload.get(key), kind):
+            raise CheckpointError(f"{path}: checkpoint field {key!r} is missing or malformed")
+    return payload
+
+
+def load(path: str | Path, map_location: str | torch.device = "cpu") -> FourDTreeModel:
+    """Rebuild a :class:`FourDTreeModel` from a checkpoint; ``model.checkpoint_config`` holds the run's config."""
+    payload = read_checkpoint(path)
+    try:
+        model = FourDTreeModel(**payload["args"])
+        model.load_state_dict(payload["state_dict"])
+    except (TypeError, ValueError, KeyError, RuntimeError) as e:
+        raise CheckpointError(f"{path}: the checkpoint does not rebuild a model ({type(e).__name__}: {e})") from None
+    model.checkpoint_config = payload["config"]
+    return model.to(map_location)

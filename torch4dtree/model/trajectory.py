@@ -1,0 +1,227 @@
+"""4D statistics of trajectories (SPEC §5, paper §4.2): the 4D Karcher mean and the PCA of registered trajectories.
+
+A 4D tree is ``(alpha(0), q)``: its trajectory's start point and SRVF (:mod:`torch4dtree.temporal.trajectory`).
+Flattened as ``x = [alpha(0), q / sqrt(n_t - 1)]`` the Euclidean norm of differences is the 4D distance of
+:func:`~torch4dtree.temporal.register_trajectories`, so once every trajectory is time-warped onto the mean, the
+mean is an average and the PCA an SVD.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import torch
+from torch import Tensor
+
+from ..space.fitted import FittedModule, NotFittedError
+from ..temporal.registration import TemporalRegistration, register_trajectories
+from ..temporal.trajectory import trajectory_from_srvf, trajectory_srvf
+
+__all__ = ["TrajectoryMean", "TrajectoryPCA", "flatten_srvf", "unflatten_srvf"]
+
+
+def _check_alpha(alpha: Tensor, name: str = "alpha") -> None:
+    if not isinstance(alpha, Tensor) or not alpha.is_floating_point():
+        raise TypeError(f"{name} must be a floating point tensor")
+    if alpha.dim() != 3 or alpha.shape[1] < 2 or alpha.shape[2] < 1:
+        raise ValueError(f"{name} must be (N, n_t >= 2, k), got {tuple(alpha.shape)}")
+    if not bool(torch.isfinite(alpha).all()):
+        raise ValueError(f"{name} contains NaN or inf")
+
+
+def flatten_srvf(start: Tensor, q: Tensor) -> Tensor:
+    """``start (..., k)``, ``q (..., n_t - 1, k) -> x (..., k * n_t)``: Euclidean norms are 4D distances."""
+    return torch.cat([start, q.flatten(-2) / math.sqrt(q.shape[-2])], dim=-1)
+
+
+def unflatten_srvf(x: Tensor, n_t: int, k: int) -> tuple[Tensor, Tensor]:
+    """Inverse of :func:`flatten_srvf`: ``x (..., k * n_t) -> (start (..., k), q (..., n_t - 1, k))``."""
+    if x.shape[-1] != k * n_t:
+        raise ValueError(f"expected vectors of length k * n_t = {k * n_t}, got {tuple(x.shape)}")
+    return x[..., :k], x[..., k:].unflatten(-1, (n_t - 1, k)) * math.sqrt(n_t - 1)
+
+
+class TrajectoryMean(FittedModule):
+    """The 4D Karcher mean: iterate {temporally register every trajectory onto the mean; average SRVFs and start
+    points} (the first mean is the plain average, identity warps).
+
+    Args:
+        max_iters: at most this many rounds of registration onto a mean.
+        tol: stop when the energy (sum of squared 4D distances to the mean) decreases by less than ``tol``
+            relatively.
+        registration: keyword arguments of :func:`register_trajectories` (DP settings).
+
+    Fitted buffers: ``start (k,)``, ``q (n_t - 1, k)``, ``trajectory (n_t, k)``. ``energies_`` (one per round,
+    the energy of the registrations onto that round's mean, never increasing) travels in the extra state.
+    """
+
+    _fitted_buffers = ("start", "q", "trajectory")
+
+    def __init__(self, max_iters: int = 10, tol: float = 1e-3, registration: dict[str, Any] | None = None) -> None:
+        super().__init__()
+        if max_iters < 1:
+            raise ValueError(f"max_iters must be at least 1, got {max_iters}")
+        self.max_iters, self.tol = int(max_iters), float(tol)
+        self.registration = dict(registration or {})
+        self.energies_: list[float] = []
+        for name, shape in (("start", (0,)), ("q", (0, 0)), ("trajectory", (0, 0))):
+            self.register_buffer(name, torch.zeros(shape))
+
+    def get_extra_state(self) -> dict[str, Any]:
+        return {"version": 1, "max_iters": self.max_iters, "tol": self.tol, "registration": dict(self.registration),
+                "energies": list(self.energies_)}
+
+    def set_extra_state(self, state: dict[str, Any]) -> None:
+        if not isinstance(state, dict) or state.get("version") != 1:
+            raise ValueError("not a TrajectoryMean state")
+        self.max_iters, self.tol = state["max_iters"], state["tol"]
+        self.registration, self.energies_ = dict(state["registration"]), list(state["energies"])
+
+    @property
+    def is_fitted(self) -> bool:
+        return self.trajectory.shape[0] > 0
+
+    def register(self, alpha: Tensor) -> TemporalRegistration:
+        """Time-warp trajectories ``alpha (..., n_t, k)`` onto the mean (batched :func:`register_trajectories`)."""
+        if not self.is_fitted:
+            raise NotFittedError("TrajectoryMean is not fitted")
+        if alpha.shape[-2:] != self.trajectory.shape:
+            raise ValueError(f"trajectories must end with {tuple(self.trajectory.shape)}, got {tuple(alpha.shape)}")
+        mov = alpha.to(self.trajectory)
+        return register_trajectories(self.trajectory.expand_as(mov), mov, **self.registration)
+
+    def fit(self, alpha: Tensor) -> TrajectoryMean:
+        """Fit on ``alpha (N, n_t, k)``. Returns ``self``; ``registered_`` holds the registrations onto the result."""
+        _check_alpha(alpha)
+        a = alpha.detach()
+        start, q = trajectory_srvf(a)
+        mean_start, mean_q = start.mean(0), q.mean(0)
+        self.energies_ = []
+        reg = None
+        for _ in range(self.max_iters):
+            self._set_fitted(start=mean_start, q=mean_q, trajectory=trajectory_from_srvf(mean_start, mean_q))
+            reg = self.register(a)
+            energy = float(reg.distance.square().sum())
+            self.energies_.append(energy)
+            new_q = reg.q_registered.mean(0)
+            if len(self.energies_) > 1 and self.energies_[-2] - energy <= self.tol * max(self.energies_[-2], 1e-300):
+                break
+            mean_q = new_q
+        self.registered_ = reg
+        return self
+
+
+class TrajectoryPCA(FittedModule):
+    """PCA of registered trajectories (SRVFs with their start points); modes ``mean + tau sqrt(u_i) delta_i``.
+
+    Coefficients are **standardised**: ``z_i`` is the projection on component ``i`` divided by ``sqrt(u_i)``, so a
+    standard normal ``z`` follows the fitted Gaussian. ``m`` components: ``n_components``, or the smallest number
+    explaining ``variance`` of the total.
+
+    Fitted buffers: ``mean (D,)`` (``D = k * n_t``, :func:`flatten_srvf`), ``components (m, D)`` orthonormal,
+    ``explained_variance (m,)`` (``u_i``, with ``1/(N-1)``), ``explained_variance_ratio (m,)``. Copies of one
+    trajectory give one component of zero variance.
+    """
+
+    _fitted_buffers = ("mean", "components", "explained_variance", "explained_variance_ratio")
+
+    def __init__(self, n_components: int | None = None, variance: float = 0.95) -> None:
+        super().__init__()
+        if n_components is not None and (isinstance(n_components, bool) or int(n_components) < 1):
+            raise ValueError(f"n_components must be None or a positive int, got {n_components!r}")
+        if not 0.0 < variance <= 1.0:
+            raise ValueError(f"variance must be in (0, 1], got {variance}")
+        self.n_components = None if n_components is None else int(n_components)
+        self.variance = float(variance)
+        self.n_t, self.k, self.total_variance_ = 0, 0, 0.0
+        for name in ("mean", "explained_variance", "explained_variance_ratio"):
+            self.register_buffer(name, torch.zeros(0))
+        self.register_buffer("components", torch.zeros(0, 0))
+
+    def get_extra_state(self) -> dict[str, Any]:
+        return {"version": 1, "n_components": self.n_components, "variance": self.variance, "n_t": self.n_t,
+                "k": self.k, "total_variance": self.total_variance_}
+
+    def set_extra_state(self, state: dict[str, Any]) -> None:
+        if not isinstance(state, dict) or state.get("version") != 1:
+            raise ValueError("not a TrajectoryPCA state")
+        self.n_components, self.variance = state["n_components"], state["variance"]
+        self.n_t, self.k, self.total_variance_ = state["n_t"], state["k"], state["total_variance"]
+
+    @property
+    def n_modes(self) -> int:
+        return self.components.shape[0]
+
+    def _check_fitted(self) -> None:
+        if self.n_modes == 0:
+            raise NotFittedError("TrajectoryPCA is not fitted")
+
+    def fit(self, start: Tensor, q: Tensor, center: Tensor | None = None) -> TrajectoryPCA:
+        """Fit on ``N >= 2`` registered trajectories: ``start (N, k)``, ``q (N, n_t - 1, k)``. Returns ``self``.
+
+        ``center (k * n_t,)``: the flattened 4D mean to centre on (the Karcher mean, so that ``z = 0`` is exactly
+        it: the PCA of the tangent space at the mean); default the average of the inputs.
+        """
+        if q.dim() != 3 or start.shape != (q.shape[0], q.shape[2]):
+            raise ValueError(f"start must be (N, k) and q (N, n_t - 1, k), got {tuple(start.shape)}, {tuple(q.shape)}")
+        N = q.shape[0]
+        if N < 2:
+            raise ValueError(f"PCA needs at least 2 trajectories, got {N}")
+        X = flatten_srvf(start, q).detach()
+        mean = X.mean(0) if center is None else center.detach().to(X)
+        if mean.shape != X.shape[1:]:
+            raise ValueError(f"center must be ({X.shape[1]},), got {tuple(mean.shape)}")
+        _, sing, Vh = torch.linalg.svd(X - mean, full_matrices=False)
+        var = sing.square() / (N - 1)
+        total = float(var.sum())
+        ratio = var / total if total > 0 else torch.zeros_like(var)
+        if self.n_components is not None:
+            m = min(self.n_components, len(var))
+        elif total > 0:
+            m = min(int((ratio.cumsum(0) < self.variance - 1e-12).sum()) + 1, len(var))
+        else:
+            m = 1
+        comps = Vh[:m]
+        big = comps.abs().argmax(1, keepdim=True)
+        comps = comps * torch.sign(comps.gather(1, big))
+        self.n_t, self.k, self.total_variance_ = q.shape[1] + 1, q.shape[2], total
+        self._set_fitted(mean=mean, components=comps, explained_variance=var[:m].clamp_min(0),
+                         explained_variance_ratio=ratio[:m])
+        return self
+
+    def scales(self) -> Tensor:
+        """``(m,)`` standard deviations ``sqrt(u_i)``."""
+        return self.explained_variance.sqrt()
+
+    def vectors(self, z: Tensor) -> Tensor:
+        """Flattened 4D trees ``x (..., D) = mean + (z sqrt(u)) @ components`` from ``z (..., m)`` (differentiable)."""
+        self._check_fitted()
+        if z.shape[-1] != self.n_modes:
+            raise ValueError(f"coefficients must end with m={self.n_modes}, got {tuple(z.shape)}")
+        return self.mean + (z.to(self.mean.dtype) * self.scales()) @ self.components
+
+    def trajectories(self, z: Tensor) -> Tensor:
+        """``z (..., m) -> alpha (..., n_t, k)`` (differentiable)."""
+        start, q = unflatten_srvf(self.vectors(z), self.n_t, self.k)
+        return trajectory_from_srvf(start, q)
+
+    def project(self, start: Tensor, q: Tensor) -> tuple[Tensor, Tensor]:
+        """Standardised coefficients ``z (..., m)`` of registered trajectories and the residual norm ``(...,)`` (the
+        4D distance to their reconstruction). Modes of zero variance get ``z = 0``."""
+        self._check_fitted()
+        xc = flatten_srvf(start, q).to(self.mean) - self.mean
+        proj = xc @ self.components.T
+        s = self.scales()
+        z = torch.where(s > 0, proj / torch.where(s > 0, s, 1), torch.zeros_like(proj))
+        residual = (xc - proj @ self.components).norm(dim=-1)
+        return z, residual
+
+    def modes(self, taus: Tensor, modes: int | None = None) -> Tensor:
+        """Trajectories along the first ``modes`` modes at ``taus`` sd: ``(modes, len(taus), n_t, k)``."""
+        self._check_fitted()
+        m = self.n_modes if modes is None else min(modes, self.n_modes)
+        t = taus.to(self.mean)
+        z = torch.zeros(m, len(t), self.n_modes, dtype=self.mean.dtype, device=self.mean.device)
+        z[torch.arange(m), :, torch.arange(m)] = t
+        return self.trajectories(z)

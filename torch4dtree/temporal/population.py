@@ -1,0 +1,278 @@
+"""The population tree space (SPEC §5): ``N`` 4D trees in one slot layout, a tree PCA, trajectories in ``R^k``.
+
+:func:`fit_population` runs, for ``N`` 4D trees:
+
+1. **within-sequence registration** of each (:func:`register_sequence`), all with one metric (``lp`` relative
+   to the median last-frame main-branch length, so the metric does not depend on which plant is the reference);
+2. **the reference**: the medoid of the representatives (:func:`representative_tree`) among
+   ``medoid_candidates`` candidates, chosen by an order-independent rule (the candidates are the
+   representatives at evenly spaced ranks of total length, ties by name; the one with the smallest sum of
+   squared registered distances of all representatives onto it wins);
+3. **cross-sequence registration** of every representative onto the reference's (one batched call) and the
+   **union layout** of all frames (:func:`combine_many`);
+4. a :class:`TreePCA` on all frames, and each 4D tree's **trajectory** ``(n_t, k)`` on the normalised time grid
+   ``linspace(0, 1, n_t)`` between its first and last frame (its ``time_spans`` give data units back).
+
+:class:`Population` is an ``nn.Module`` holding what is needed to put a *new* 4D tree into the fitted space
+(:meth:`Population.transform`): the reference representative (its branch points), the tree PCA, the settings.
+A new tree's branches that match no reference slot cannot be written in the layout and are dropped (their
+cost is reported).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from typing import Any, NamedTuple
+
+import torch
+from torch import Tensor
+
+from ..space.fitted import FittedModule, NotFittedError
+from ..space.pca import TreePCA
+from ..trees.aligned import AlignedTrees, slot_weights
+from ..trees.registration import _check_lambdas, register_to_reference
+from ..trees.structures import Trees, TreeSequence
+from .spatiotemporal import combine_many, place_sequence, representative_tree
+from .trajectory import resample_trajectory
+from .within import AlignedSequence, register_sequence
+
+__all__ = ["Population", "SequenceEncoding", "fit_population"]
+
+ROTATIONS = ("none", "vertical", "so3")
+
+
+class SequenceEncoding(NamedTuple):
+    """One 4D tree written in a fitted :class:`Population` (``n`` frames, ``k`` components, ``S`` slots).
+
+    * ``trajectory (n_t, k)``: tree-PCA coefficients on the normalised time grid.
+    * ``frame_coefficients (n, k)``: per frame; ``times (n,)`` their data times.
+    * ``aligned``: the frames in the population layout (:class:`AlignedTrees` of ``n`` trees).
+    * ``dropped_sq_norm (n,)``: squared weighted length of each frame's branches outside the layout.
+    """
+
+    trajectory: Tensor
+    frame_coefficients: Tensor
+    times: Tensor
+    aligned: AlignedTrees
+    dropped_sq_norm: Tensor
+
+
+class Population(FittedModule):
+    """``N`` 4D trees in one tree space (module doc). Fit with :meth:`fit` or :func:`fit_population`.
+
+    Args:
+        lambdas: ``(lm, ls, lp)``; ``lp`` relative to the plants' size (module doc, step 1).
+        rotation: ``"none"``, ``"vertical"`` or ``"so3"`` (cross-sequence registration; within a sequence the
+            frames share the scanner's frame, so none is used there).
+        n_t: common time samples of the trajectories.
+        n_components: tree-PCA components (default: the smallest number explaining ``variance``).
+        variance: share of the frames' variance the tree PCA keeps when ``n_components`` is None.
+        medoid_candidates: how many representatives compete for the reference (each costs one batched
+            registration of all ``N``).
+        registration: keyword arguments of the tree registrations (``neighbourhood``, ``n_starts``...).
+
+    Fitted buffers: ``ref_points (S_r, T, d)``, ``ref_parent (S_r,)``, ``ref_s (S_r,)`` (the reference
+    representative, slot order = the layout's first ``S_r`` slots), ``trajectories (N, n_t, k)``,
+    ``time_spans (N, 2)`` (first and last frame time of each training 4D tree); the tree PCA is the submodule
+    ``pca``. ``lambdas_`` (the effective weights), ``names_``, ``report_`` travel in the extra state.
+    """
+
+    _fitted_buffers = ("ref_points", "ref_parent", "ref_s", "trajectories", "time_spans")
+
+    def __init__(self, lambdas: Sequence[float] = (1.0, 1.0, 1.0), rotation: str = "none", n_t: int = 32,
+                 n_components: int | None = None, variance: float = 0.99, medoid_candidates: int = 3,
+                 registration: dict[str, Any] | None = None) -> None:
+        super().__init__()
+        if rotation not in ROTATIONS:
+            raise ValueError(f"rotation must be one of {ROTATIONS}, got {rotation!r}")
+        if not isinstance(n_t, int) or n_t < 2:
+            raise ValueError(f"n_t must be an integer >= 2, got {n_t!r}")
+        if medoid_candidates < 1:
+            raise ValueError(f"medoid_candidates must be at least 1, got {medoid_candidates}")
+        self.lambdas = _check_lambdas(lambdas)
+        self.rotation, self.n_t, self.medoid_candidates = rotation, n_t, int(medoid_candidates)
+        self.registration = dict(registration or {})
+        self.lambdas_ = self.lambdas
+        self.names_: list[str] = []
+        self.report_: dict[str, Any] = {}
+        self.pca = TreePCA(n_components=n_components, variance=variance)
+        self.register_buffer("ref_points", torch.zeros(0, 0, 0))
+        self.register_buffer("ref_parent", torch.zeros(0, dtype=torch.long))
+        self.register_buffer("ref_s", torch.zeros(0))
+        self.register_buffer("trajectories", torch.zeros(0, 0, 0))
+        self.register_buffer("time_spans", torch.zeros(0, 2))
+        self.layout_: AlignedTrees | None = None  # the training frames (not saved)
+        self.sequences_: list[AlignedSequence] = []
+
+    def get_extra_state(self) -> dict[str, Any]:
+        return {"version": 1, "lambdas": list(self.lambdas), "rotation": self.rotation, "n_t": self.n_t,
+                "medoid_candidates": self.medoid_candidates, "registration": dict(self.registration),
+                "lambdas_": list(self.lambdas_), "names": list(self.names_), "report": self.report_}
+
+    def set_extra_state(self, state: dict[str, Any]) -> None:
+        if not isinstance(state, dict) or state.get("version") != 1:
+            raise ValueError("not a Population state (missing or unknown version)")
+        self.lambdas, self.rotation, self.n_t = _check_lambdas(state["lambdas"]), state["rotation"], state["n_t"]
+        self.medoid_candidates, self.registration = state["medoid_candidates"], dict(state["registration"])
+        self.lambdas_ = _check_lambdas(state["lambdas_"])
+        self.names_, self.report_ = list(state["names"]), dict(state["report"])
+
+    @property
+    def is_fitted(self) -> bool:
+        return self.trajectories.shape[0] > 0
+
+    @property
+    def k(self) -> int:
+        return self.pca.n_components_
+
+    def _check_fitted(self) -> None:
+        if not self.is_fitted:
+            raise NotFittedError("Population is not fitted: call fit() or load_state_dict() first")
+
+    def reference_tree(self) -> Trees:
+        """The reference representative as a one-tree :class:`Trees` (float64; ``label`` = slot)."""
+        S = self.ref_parent.shape[0]
+        dev = self.ref_points.device
+        return Trees(self.ref_points.to(torch.float64), self.ref_parent.clone(), self.ref_s.to(torch.float64),
+                     torch.tensor([S], device=dev), torch.arange(S, device=dev))
+
+    # ------------------------------------------------------------------------ fit
+    def fit(self, sequences: Sequence[TreeSequence], progress: bool = False) -> Population:
+        """Fit on ``N >= 2`` 4D trees (each with at least 2 frames). Returns ``self``; timings in ``report_``."""
+        seqs = list(sequences)
+        if len(seqs) < 2:
+            raise ValueError(f"a population needs at least 2 4D trees, got {len(seqs)}")
+        for i, s in enumerate(seqs):
+            if not isinstance(s, TreeSequence):
+                raise TypeError(f"sequence {i} is a {type(s).__name__}, not a TreeSequence")
+            if len(s) < 2:
+                raise ValueError(f"{s.name or f'sequence {i}'} has {len(s)} frame(s); a 4D tree needs at least 2")
+        seqs = [s.to(torch.float64) for s in seqs]
+        seconds: dict[str, float] = {}
+        t0 = time.perf_counter()
+        lengths = torch.stack([s.frames[len(s) - 1].branch_lengths()[0] for s in seqs])
+        lm, ls, lp = self.lambdas
+        lam = (lm, ls, lp * float(lengths.median()))
+        from tqdm.auto import tqdm
+
+        aseqs = [register_sequence(s, lam, progress=False, lp_relative=False, **self.registration)
+                 for s in tqdm(seqs, disable=not progress, desc="within-sequence registration", unit="plant")]
+        seconds["within_sequence"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        reps = [representative_tree(a) for a in aseqs]
+        names = [s.name or f"plant_{i}" for i, s in enumerate(seqs)]
+        ref, regs = self._medoid(reps, names, lam, progress)
+        seconds["cross_sequence"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        movs = [i for i in range(len(seqs)) if i != ref]
+        layout = combine_many(aseqs[ref], [aseqs[i] for i in movs], [regs[i].matches for i in movs],
+                              [regs[i].gamma.to(torch.float64) for i in movs],
+                              [regs[i].rotation.to(torch.float64) for i in movs], lam)
+        order = [ref] + movs
+        counts = [len(aseqs[i]) for i in order]
+        coeffs = self.pca.fit_transform(layout)
+        pieces = coeffs.split(counts)
+        trajs = torch.empty(len(seqs), self.n_t, coeffs.shape[1], dtype=coeffs.dtype)
+        for i, c in zip(order, pieces):
+            trajs[i] = resample_trajectory(c, seqs[i].times.to(c.dtype), self.n_t)
+        seconds["tree_space"] = time.perf_counter() - t0
+        # the layout in the input order of the sequences (the reference's frames were first)
+        starts = torch.tensor([0] + counts).cumsum(0).tolist()
+        where = {i: list(range(starts[j], starts[j + 1])) for j, i in enumerate(order)}
+        self.layout_ = layout[[r for i in range(len(seqs)) for r in where[i]]]
+        self.sequences_ = aseqs
+        rep = reps[ref]
+        spans = torch.tensor([[float(s.times[0]), float(s.times[-1])] for s in seqs], dtype=torch.float64)
+        self.lambdas_, self.names_ = lam, names
+        self.report_ = {
+            "reference": names[ref], "slots": layout.num_slots, "reference_slots": rep.points.shape[0],
+            "frames": int(sum(counts)), "components": self.pca.n_components_,
+            "variance_explained": float(self.pca.explained_variance_ratio.sum()),
+            "within_sequence_distance_mean": float(torch.cat([a.distances for a in aseqs]).mean()),
+            "cross_distance_before": [float(r.distance_before) for r in regs],
+            "cross_distance_after": [float(r.distance) for r in regs], "seconds": seconds,
+        }
+        self._set_fitted(ref_points=rep.points, ref_parent=rep.parent, ref_s=rep.s, trajectories=trajs,
+                         time_spans=spans)
+        return self
+
+    def _medoid(self, reps: list[Trees], names: list[str], lam: tuple[float, float, float], progress: bool
+                ) -> tuple[int, list[Any]]:
+        """Index of the reference and the registrations of every representative onto it (module doc, step 2)."""
+        total = [float(r.total_length()[0]) for r in reps]
+        ranked = sorted(range(len(reps)), key=lambda i: (total[i], names[i]))
+        m = min(self.medoid_candidates, len(reps))
+        cands = sorted({ranked[round(j * (len(reps) - 1) / max(m - 1, 1))] for j in range(m)}) if m > 1 else \
+            [ranked[(len(reps) - 1) // 2]]
+        batch = Trees.cat(reps)
+        best: tuple[float, str, int, list[Any]] | None = None
+        from tqdm.auto import tqdm
+
+        for c in tqdm(cands, disable=not progress, desc="choosing the reference", unit="candidate"):
+            regs = register_to_reference(batch, reps[c], lam, self.rotation, lp_relative=False, **self.registration)
+            energy = sum(float(r.distance) ** 2 for r in regs)
+            if best is None or (energy, names[c]) < best[:2]:
+                best = (energy, names[c], c, regs)
+        assert best is not None
+        return best[2], best[3]
+
+    # ------------------------------------------------------------------------ transform
+    def transform(self, sequence: TreeSequence, aligned: AlignedSequence | None = None) -> SequenceEncoding:
+        """Write a new 4D tree into the fitted space (module doc): within-sequence registration, registration of
+        its representative onto the reference, its frames in the layout, their coefficients and trajectory.
+
+        ``aligned``: its within-sequence registration, if already computed. A single frame is allowed (its
+        trajectory is then constant).
+        """
+        self._check_fitted()
+        if not isinstance(sequence, TreeSequence):
+            raise TypeError(f"expected a TreeSequence, got {type(sequence).__name__}")
+        seq = sequence.to(device=self.ref_points.device, dtype=torch.float64)
+        if aligned is None:
+            aligned = register_sequence(seq, self.lambdas_, lp_relative=False, **self.registration)
+        rep = representative_tree(aligned)
+        ref = self.reference_tree()
+        reg = register_to_reference(rep, ref, self.lambdas_, self.rotation, lp_relative=False,
+                                    **self.registration)[0]
+        S_r = ref.points.shape[0]
+        matched = dict(reg.matches)
+        S_m = aligned.num_slots
+        # unmatched slots go to scratch slots past the layout, then are cut off (and their cost reported)
+        slot_of, extra = [], S_r
+        for k in range(S_m):
+            if k in matched:
+                slot_of.append(matched[k])
+            else:
+                slot_of.append(extra)
+                extra += 1
+        q, s, present, _ = place_sequence(aligned, slot_of, extra, reg.gamma.to(torch.float64),
+                                          reg.rotation.to(torch.float64))
+        S = self.pca.num_slots
+        n, _, M, d = q.shape
+        # what the branches outside the layout cost (weights of their own depth in the new tree)
+        w_mov = slot_weights(aligned.aligned.slot_depth, self.lambdas_)[0].to(q)
+        cut = torch.tensor([slot_of[k] >= S_r for k in range(S_m)], device=q.device)
+        idx = torch.as_tensor(slot_of, device=q.device)
+        dropped = (w_mov * cut * q[:, idx].square().sum((-1, -2)) / M).sum(1)
+        qf = q.new_zeros(n, S, M, d)
+        sf = s.new_zeros(n, S)
+        pf = present.new_zeros(n, S)
+        qf[:, :S_r], sf[:, :S_r], pf[:, :S_r] = q[:, :S_r], s[:, :S_r], present[:, :S_r]
+        source = torch.full((n, S), -1, dtype=torch.long, device=qf.device)
+        layout = AlignedTrees(qf, sf, pf, aligned.aligned.root, self.pca.slot_parent, self.pca.slot_depth, source,
+                              self.pca.lambdas)
+        coeffs = self.pca.transform(layout)
+        if n >= 2:
+            traj = resample_trajectory(coeffs, seq.times.to(coeffs.dtype), self.n_t)
+        else:
+            traj = coeffs.expand(self.n_t, -1).clone()
+        return SequenceEncoding(traj, coeffs, seq.times, layout, dropped)
+
+
+def fit_population(sequences: Sequence[TreeSequence], lambdas: Sequence[float] = (1.0, 1.0, 1.0),
+                   rotation: str = "none", n_t: int = 32, variance: float = 0.99, n_components: int | None = None,
+                   progress: bool = False, medoid_candidates: int = 3, **registration: Any) -> Population:
+    """``N`` 4D trees in one tree space (module doc): ``Population(...).fit(sequences)``."""
+    return Population(lambdas, rotation, n_t, n_components, variance, medoid_candidates,
+                      registration).fit(sequences, progress)
