@@ -19,7 +19,7 @@ from typing import Any
 
 import torch
 
-from ..config import add_config_arguments, config_from_args
+from .options import add_config_arguments, config_from_args
 
 FIGURE_COLUMNS = 6
 
