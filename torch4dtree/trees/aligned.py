@@ -223,78 +223,127 @@ class AlignedTrees:
         with their descendants. The curves are then resampled uniformly in arc length, so ``s`` is
         converted to the arc-length fraction of the attachment point. The branch ``label`` is the slot
         index, so branches keep their identity across a geodesic. The main branch is always kept.
+        Within a tree, branches are in depth-first order, children by increasing arc-length ``s`` (equal
+        ``s``: the higher slot first).
+
+        Batched over trees: slots are processed depth by depth for the whole batch. The points are
+        differentiable in ``q``, ``s`` and ``root`` given the discrete choices (kept slots, order).
         """
         n, S, M, d = self.q.shape
-        parent = self.slot_parent.tolist()
-        lengths = srvf_sq_norm(self.q)  # (n, S) = branch lengths
-        pts_all: list[Tensor] = []
-        par_all: list[int] = []
-        s_all: list[Tensor] = []
-        lab_all: list[int] = []
-        counts: list[int] = []
-        for t in range(n):
-            keep = [True] * S
-            for k in range(1, S):
-                keep[k] = keep[parent[k]] and bool(lengths[t, k] > eps)
-            curves: dict[int, Tensor] = {}
-            arc_s: dict[int, Tensor] = {}
-            for k in range(S):  # parents first, so a child's parent curve exists
-                if not keep[k]:
-                    continue
-                if k == 0:
-                    start = self.root[t]
-                    arc_s[k] = self.s.new_zeros(())
-                else:
-                    pc = curves[parent[k]]
-                    sk = self.s[t, k].clamp(0, 1)
-                    start = interpolate_curve(pc[None], sk.reshape(1, 1))[0, 0]
-                    arc_s[k] = _arc_fraction(pc, sk)
-                curves[k] = inverse_srvf(self.q[t, k], start)
-            children: dict[int, list[int]] = {k: [] for k in curves}
-            for k in curves:
-                if k > 0:
-                    children[parent[k]].append(k)
-            order: list[int] = []
-            stack = [0]
-            while stack:  # depth-first, children by increasing s (the Trees convention)
-                k = stack.pop()
-                order.append(k)
-                stack.extend(sorted(children[k], key=lambda c: -float(arc_s[c])))
-            new = {k: i for i, k in enumerate(order)}
-            pts_all.append(torch.stack([curves[k] for k in order]))
-            par_all += [-1 if k == 0 else new[parent[k]] for k in order]
-            s_all += [arc_s[k] for k in order]
-            lab_all += order
-            counts.append(len(order))
-        raw = torch.cat(pts_all)
         T = M + 1
-        dev = raw.device
-        out = Trees(_resample_or_keep(raw, T), torch.tensor(par_all, dtype=torch.long, device=dev),
-                    torch.stack(s_all).to(raw.dtype).clamp(0, 1), torch.tensor(counts, dtype=torch.long, device=dev),
-                    torch.tensor(lab_all, dtype=torch.long, device=dev))
-        # resampling moves a parent's points by chord effects: snap each child back onto its parent
-        side = out.parent >= 0
-        if bool(side.any()):
-            pts = out.points.clone()
-            gp = out.global_parent.tolist()
-            for i in side.nonzero()[:, 0].tolist():  # parents first, so a parent is final before its children
-                pts[i, 0] = interpolate_curve(pts[gp[i]][None], out.s[i].reshape(1, 1))[0, 0]
-            out = out.with_points(pts)
-        return out
+        dev = self.q.device
+        depth_slots, depth_parents = _slots_by_depth(self.slot_parent)
+        # which slots survive: long enough and every ancestor kept (a detached comparison, no grad needed)
+        long_enough = srvf_sq_norm(self.q.detach()) > eps  # (n, S)
+        keep = torch.ones(n, S, dtype=torch.bool, device=dev)
+        for slots, parents in zip(depth_slots, depth_parents):
+            keep[:, slots] = keep[:, parents] & long_enough[:, slots]
+        # curves: integrate every slot from the origin at once, then place them depth by depth
+        sc = self.s.clamp(0, 1)
+        raw = inverse_srvf(self.q)  # (n, S, T, d)
+        start = self.root[:, None, :].expand(n, S, d).clone()  # (n, S, d); slot 0 starts at the root
+        for slots, parents in zip(depth_slots, depth_parents):
+            parent_curves = raw[:, parents] + start[:, parents, None, :]  # (n, k, T, d)
+            start[:, slots] = interpolate_curve(parent_curves, sc[:, slots, None])[:, :, 0]
+        curves = raw + start[:, :, None, :]  # (n, S, T, d)
+        # bifurcation parameter -> arc-length fraction on the (not yet resampled) parent curve
+        arc = torch.zeros_like(sc)
+        if S > 1:
+            arc[:, 1:] = _arc_fractions(curves[:, self.slot_parent[1:]], sc[:, 1:])
+        order, local_parent, counts = _depth_first_order(keep, arc.detach(), self.slot_parent, depth_slots,
+                                                         depth_parents)
+        # order: (N,) flat index tree * S + slot of every packed branch
+        label = order % S
+        raw_pts = curves.reshape(n * S, T, d)[order]
+        out = Trees(_resample_or_keep(raw_pts, T), local_parent, arc.reshape(-1)[order].clamp(0, 1), counts, label)
+        # resampling moves a parent's points by chord effects: snap each child back onto its parent,
+        # depth by depth so that a parent is final before its children
+        packed_depth = _slot_depth(self.slot_parent)[label]
+        gp = out.global_parent
+        pts = out.points.clone()
+        for k in range(1, len(depth_slots) + 1):
+            idx = (packed_depth == k).nonzero()[:, 0]
+            if len(idx):
+                pts[idx, 0] = interpolate_curve(pts[gp[idx]], out.s[idx, None])[:, 0]
+        return out.with_points(pts)
 
 
-def _arc_fraction(curve: Tensor, s: Tensor) -> Tensor:
-    """Arc-length fraction of the point at parameter ``s`` of a polyline ``(T, d)``."""
-    T = curve.shape[0]
-    seg = (curve[1:] - curve[:-1]).norm(dim=-1)
-    total = seg.sum()
-    if not bool(total > 0):
-        return s
-    cum = torch.cat([seg.new_zeros(1), seg.cumsum(0)])
+def _slot_depth(slot_parent: Tensor) -> Tensor:
+    """``(S,)`` layer of every slot, from ``slot_parent (S,)`` (parents first)."""
+    par = slot_parent.tolist()
+    depth = [0] * len(par)
+    for k in range(1, len(par)):  # one pass over small integers: parents come first
+        depth[k] = depth[par[k]] + 1
+    return torch.tensor(depth, dtype=torch.long, device=slot_parent.device)
+
+
+def _slots_by_depth(slot_parent: Tensor) -> tuple[list[Tensor], list[Tensor]]:
+    """Slots of each layer ``1, 2, ...`` and their parent slots (two lists of ``(k,)`` long tensors)."""
+    depth = _slot_depth(slot_parent)
+    slots = [(depth == k).nonzero()[:, 0] for k in range(1, int(depth.max()) + 1)]
+    return slots, [slot_parent[x] for x in slots]
+
+
+def _arc_fractions(curves: Tensor, s: Tensor) -> Tensor:
+    """Arc-length fraction of the point at parameter ``s (...)`` in [0, 1] of polylines ``curves (..., T, d)``.
+
+    A zero-length curve gives ``s`` back.
+    """
+    T = curves.shape[-2]
+    seg = (curves[..., 1:, :] - curves[..., :-1, :]).norm(dim=-1)  # (..., T-1)
+    total = seg.sum(-1)
+    cum = torch.cat([torch.zeros_like(seg[..., :1]), seg.cumsum(-1)], dim=-1)  # (..., T)
     x = s * (T - 1)
-    lo = int(torch.clamp(x.floor(), 0, T - 2))
-    frac = x - lo
-    return ((cum[lo] + frac * seg[lo]) / total).clamp(0, 1)
+    lo = x.detach().floor().clamp(0, T - 2).long()
+    frac = x - lo.to(x.dtype)
+    at = cum.gather(-1, lo.unsqueeze(-1))[..., 0] + frac * seg.gather(-1, lo.unsqueeze(-1))[..., 0]
+    positive = total > 0
+    return torch.where(positive, (at / torch.where(positive, total, 1)).clamp(0, 1), s)
+
+
+def _depth_first_order(keep: Tensor, arc: Tensor, slot_parent: Tensor, depth_slots: list[Tensor],
+                       depth_parents: list[Tensor]) -> tuple[Tensor, Tensor, Tensor]:
+    """Packed depth-first order of the kept slots of every tree, children by increasing ``arc``.
+
+    Args:
+        keep: ``(n, S)`` bool kept slots (slot 0 always; a kept slot's parent is kept).
+        arc: ``(n, S)`` sort key of each slot among its siblings (ties: higher slot first).
+        slot_parent: ``(S,)``; ``depth_slots``, ``depth_parents``: from :func:`_slots_by_depth`.
+
+    Returns:
+        ``order (N,)`` flat index ``tree * S + slot`` of each packed branch, ``parent (N,)`` its parent's
+        index within its tree (``-1`` for the main branch), ``counts (n,)`` branches per tree.
+    """
+    n, S = keep.shape
+    dev = keep.device
+    # subtree sizes, deepest layer first (dropped slots count 0)
+    size = keep.long()
+    for slots, parents in zip(reversed(depth_slots), reversed(depth_parents)):
+        size.index_add_(1, parents, size[:, slots])
+    # sort the slots by (parent, arc, -slot) with stable sorts, least significant key first
+    before = torch.zeros(n, S, dtype=torch.long, device=dev)
+    if S > 1:
+        perm = torch.arange(S - 1, 0, -1, device=dev).expand(n, -1)  # (n, S-1) slots, higher first
+        perm = perm.gather(1, arc.gather(1, perm).argsort(dim=1, stable=True))
+        perm = perm.gather(1, slot_parent[perm].argsort(dim=1, stable=True))
+        # every row now lists the same parents in the same order: one group of siblings per parent
+        sorted_parent = slot_parent[perm[0]]
+        group_start = torch.searchsorted(sorted_parent, sorted_parent)
+        sz = size.gather(1, perm)
+        preceding = sz.cumsum(1) - sz
+        before.scatter_(1, perm, preceding - preceding[:, group_start])  # sizes of earlier siblings
+    # pre-order position: right after the parent and the subtrees of the earlier siblings
+    pos = torch.zeros(n, S, dtype=torch.long, device=dev)
+    for slots, parents in zip(depth_slots, depth_parents):
+        pos[:, slots] = pos[:, parents] + 1 + before[:, slots]
+    counts = keep.sum(1)
+    offset = torch.cat([counts.new_zeros(1), counts.cumsum(0)[:-1]])
+    flat_kept = keep.reshape(-1).nonzero()[:, 0]
+    packed = (offset[:, None] + pos).reshape(-1)[flat_kept]
+    order = torch.empty_like(flat_kept)
+    order[packed] = flat_kept
+    parent_pos = torch.where(slot_parent >= 0, pos[:, slot_parent.clamp(min=0)], -1)  # (n, S)
+    return order, parent_pos.reshape(-1)[order], counts
 
 
 def _resample_or_keep(points: Tensor, T: int) -> Tensor:
