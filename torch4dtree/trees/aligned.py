@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from ..curves.srvf import curve_length, interpolate_curve, inverse_srvf, resample_polylines, srvf, srvf_sq_norm
+from ..curves.srvf import interpolate_curve, inverse_srvf, srvf, srvf_sq_norm
 from .structures import Trees
 
 __all__ = ["AlignedTrees", "Lambdas", "slot_weights", "subtree_sq_norms"]
@@ -230,42 +230,52 @@ class AlignedTrees:
         differentiable in ``q``, ``s`` and ``root`` given the discrete choices (kept slots, order).
         """
         n, S, M, d = self.q.shape
-        T = M + 1
         dev = self.q.device
-        depth_slots, depth_parents = _slots_by_depth(self.slot_parent)
+        slot_depth = _slot_depth(self.slot_parent)
+        depth_slots = [(slot_depth == k).nonzero()[:, 0] for k in range(1, int(slot_depth.max()) + 1)]
+        depth_parents = [self.slot_parent[x] for x in depth_slots]
         # which slots survive: long enough and every ancestor kept (a detached comparison, no grad needed)
         long_enough = srvf_sq_norm(self.q.detach()) > eps  # (n, S)
         keep = torch.ones(n, S, dtype=torch.bool, device=dev)
         for slots, parents in zip(depth_slots, depth_parents):
             keep[:, slots] = keep[:, parents] & long_enough[:, slots]
-        # curves: integrate every slot from the origin at once, then place them depth by depth
-        sc = self.s.clamp(0, 1)
-        raw = inverse_srvf(self.q)  # (n, S, T, d)
-        start = self.root[:, None, :].expand(n, S, d).clone()  # (n, S, d); slot 0 starts at the root
-        for slots, parents in zip(depth_slots, depth_parents):
-            parent_curves = raw[:, parents] + start[:, parents, None, :]  # (n, k, T, d)
-            start[:, slots] = interpolate_curve(parent_curves, sc[:, slots, None])[:, :, 0]
-        curves = raw + start[:, :, None, :]  # (n, S, T, d)
+        # from here on only the K kept slots, by flat index tree * S + slot (so parents come first)
+        kept = keep.reshape(-1).nonzero()[:, 0]  # (K,)
+        slot, tree = kept % S, kept // S
+        kept_index = torch.full((n * S,), -1, dtype=torch.long, device=dev)
+        kept_index[kept] = torch.arange(len(kept), device=dev)
+        parent = kept_index[tree * S + self.slot_parent[slot].clamp(min=0)]  # (K,) a main branch points to itself
+        depth = slot_depth[slot]  # (K,)
+        sc = self.s.reshape(-1)[kept].clamp(0, 1)  # (K,)
+        # integrate every kept slot from the origin at once, then place them layer by layer
+        raw = inverse_srvf(self.q.reshape(n * S, M, d)[kept])  # (K, T, d)
+        start = self.root[tree]  # (K, d); main branches start at the root
+        for k in range(1, len(depth_slots) + 1):
+            idx = (depth == k).nonzero()[:, 0]
+            par = parent[idx]
+            start[idx] = interpolate_curve(raw[par] + start[par, None], sc[idx, None])[:, 0]
+        curves = raw + start[:, None]  # (K, T, d)
         # bifurcation parameter -> arc-length fraction on the (not yet resampled) parent curve
-        arc = torch.zeros_like(sc)
-        if S > 1:
-            arc[:, 1:] = _arc_fractions(curves[:, self.slot_parent[1:]], sc[:, 1:])
-        order, local_parent, counts = _depth_first_order(keep, arc.detach(), self.slot_parent, depth_slots,
-                                                         depth_parents)
-        # order: (N,) flat index tree * S + slot of every packed branch
-        label = order % S
-        raw_pts = curves.reshape(n * S, T, d)[order]
-        out = Trees(_resample_or_keep(raw_pts, T), local_parent, arc.reshape(-1)[order].clamp(0, 1), counts, label)
+        seg = (curves[:, 1:] - curves[:, :-1]).norm(dim=-1)  # (K, M)
+        arc = torch.where(slot > 0, _arc_fractions(seg[parent], sc), torch.zeros_like(sc))
+        arc_table = torch.zeros(n * S, dtype=arc.dtype, device=dev)
+        arc_table[kept] = arc.detach()
+        order, local_parent, counts = _depth_first_order(keep, arc_table.reshape(n, S), self.slot_parent,
+                                                         depth_slots, depth_parents)
+        perm = kept_index[order]  # (K,) kept index of every packed branch
+        packed_of = torch.empty_like(perm)
+        packed_of[perm] = torch.arange(len(perm), device=dev)
+        gp = packed_of[parent[perm]]  # (K,) packed index of the parent (itself for a main branch)
+        s_out = arc[perm].clamp(0, 1)
+        pts = _resample_arc_length(curves[perm], seg[perm])
         # resampling moves a parent's points by chord effects: snap each child back onto its parent,
-        # depth by depth so that a parent is final before its children
-        packed_depth = _slot_depth(self.slot_parent)[label]
-        gp = out.global_parent
-        pts = out.points.clone()
+        # layer by layer so that a parent is final before its children
+        packed_depth = depth[perm]
         for k in range(1, len(depth_slots) + 1):
             idx = (packed_depth == k).nonzero()[:, 0]
             if len(idx):
-                pts[idx, 0] = interpolate_curve(pts[gp[idx]], out.s[idx, None])[:, 0]
-        return out.with_points(pts)
+                pts[idx, 0] = interpolate_curve(pts[gp[idx]], s_out[idx, None])[:, 0]
+        return Trees(pts, local_parent, s_out, counts, slot[perm])
 
 
 def _slot_depth(slot_parent: Tensor) -> Tensor:
@@ -277,26 +287,17 @@ def _slot_depth(slot_parent: Tensor) -> Tensor:
     return torch.tensor(depth, dtype=torch.long, device=slot_parent.device)
 
 
-def _slots_by_depth(slot_parent: Tensor) -> tuple[list[Tensor], list[Tensor]]:
-    """Slots of each layer ``1, 2, ...`` and their parent slots (two lists of ``(k,)`` long tensors)."""
-    depth = _slot_depth(slot_parent)
-    slots = [(depth == k).nonzero()[:, 0] for k in range(1, int(depth.max()) + 1)]
-    return slots, [slot_parent[x] for x in slots]
-
-
-def _arc_fractions(curves: Tensor, s: Tensor) -> Tensor:
-    """Arc-length fraction of the point at parameter ``s (...)`` in [0, 1] of polylines ``curves (..., T, d)``.
-
-    A zero-length curve gives ``s`` back.
+def _arc_fractions(seg: Tensor, s: Tensor) -> Tensor:
+    """Arc-length fraction of the point at parameter ``s (...)`` in [0, 1] of polylines with segment lengths
+    ``seg (..., T-1)`` (on the uniform parameter grid). A zero-length polyline gives ``s`` back.
     """
-    T = curves.shape[-2]
-    seg = (curves[..., 1:, :] - curves[..., :-1, :]).norm(dim=-1)  # (..., T-1)
+    T = seg.shape[-1] + 1
     total = seg.sum(-1)
     cum = torch.cat([torch.zeros_like(seg[..., :1]), seg.cumsum(-1)], dim=-1)  # (..., T)
     x = s * (T - 1)
-    lo = x.detach().floor().clamp(0, T - 2).long()
-    frac = x - lo.to(x.dtype)
-    at = cum.gather(-1, lo.unsqueeze(-1))[..., 0] + frac * seg.gather(-1, lo.unsqueeze(-1))[..., 0]
+    lo = x.detach().floor().clamp(0, T - 2).long().unsqueeze(-1)
+    frac = x - lo[..., 0].to(x.dtype)
+    at = cum.gather(-1, lo)[..., 0] + frac * seg.gather(-1, lo)[..., 0]
     positive = total > 0
     return torch.where(positive, (at / torch.where(positive, total, 1)).clamp(0, 1), s)
 
@@ -308,7 +309,8 @@ def _depth_first_order(keep: Tensor, arc: Tensor, slot_parent: Tensor, depth_slo
     Args:
         keep: ``(n, S)`` bool kept slots (slot 0 always; a kept slot's parent is kept).
         arc: ``(n, S)`` sort key of each slot among its siblings (ties: higher slot first).
-        slot_parent: ``(S,)``; ``depth_slots``, ``depth_parents``: from :func:`_slots_by_depth`.
+        slot_parent: ``(S,)``.
+        depth_slots, depth_parents: per layer 1, 2, ..., its slots and their parent slots (``(k,)`` long each).
 
     Returns:
         ``order (N,)`` flat index ``tree * S + slot`` of each packed branch, ``parent (N,)`` its parent's
@@ -346,12 +348,20 @@ def _depth_first_order(keep: Tensor, arc: Tensor, slot_parent: Tensor, depth_slo
     return order, parent_pos.reshape(-1)[order], counts
 
 
-def _resample_or_keep(points: Tensor, T: int) -> Tensor:
-    """Arc-length resampling of ``(N, T, d)`` polylines; zero-length ones are kept as they are."""
-    length = curve_length(points)
-    out = points.clone()
-    ok = length > 0
-    if bool(ok.any()):
-        counts = torch.full((int(ok.sum()),), points.shape[1], device=points.device)
-        out[ok] = resample_polylines(points[ok], counts, T)
-    return out
+def _resample_arc_length(points: Tensor, seg: Tensor) -> Tensor:
+    """Polylines ``points (K, T, d)`` with segment lengths ``seg (K, T-1)`` resampled uniformly in arc length.
+
+    A zero-length polyline (all points equal) comes back unchanged.
+    """
+    K, T, d = points.shape
+    cum = torch.cat([torch.zeros_like(seg[:, :1]), seg.cumsum(1)], dim=1)  # (K, T)
+    target = torch.linspace(0, 1, T, dtype=points.dtype, device=points.device) * cum[:, -1:]  # (K, T)
+    hi = torch.searchsorted(cum, target, right=True).clamp(1, T - 1)
+    lo = hi - 1
+    c_lo, c_hi = cum.gather(1, lo), cum.gather(1, hi)
+    width = c_hi - c_lo
+    frac = torch.where(width > 0, (target - c_lo) / torch.where(width > 0, width, 1), 0).clamp(0, 1)
+    flat = points.reshape(K * T, d)
+    row = (torch.arange(K, device=points.device) * T)[:, None]
+    p_lo, p_hi = flat[(row + lo).reshape(-1)].reshape(K, T, d), flat[(row + hi).reshape(-1)].reshape(K, T, d)
+    return p_lo + frac.unsqueeze(-1) * (p_hi - p_lo)
