@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from ..curves.srvf import interpolate_curve, inverse_srvf, srvf, srvf_sq_norm
+from ..curves.srvf import interpolate_curve, srvf, srvf_sq_norm
 from .structures import Trees
 
 __all__ = ["AlignedTrees", "Lambdas", "slot_weights", "subtree_sq_norms"]
@@ -234,48 +234,45 @@ class AlignedTrees:
         slot_depth = _slot_depth(self.slot_parent)
         depth_slots = [(slot_depth == k).nonzero()[:, 0] for k in range(1, int(slot_depth.max()) + 1)]
         depth_parents = [self.slot_parent[x] for x in depth_slots]
+        # segment lengths of every branch, |q_k|^2 / M, known before integrating: (n * S, M)
+        # (a product with ones: torch reduces over a last dim of size 3 several times slower)
+        seg_all = (self.q * self.q).reshape(n * S, M, d) @ self.q.new_ones(d) / M
         # which slots survive: long enough and every ancestor kept (a detached comparison, no grad needed)
-        long_enough = srvf_sq_norm(self.q.detach()) > eps  # (n, S)
+        long_enough = (seg_all.detach().sum(-1) > eps).reshape(n, S)
         keep = torch.ones(n, S, dtype=torch.bool, device=dev)
         for slots, parents in zip(depth_slots, depth_parents):
             keep[:, slots] = keep[:, parents] & long_enough[:, slots]
-        # from here on only the K kept slots, by flat index tree * S + slot (so parents come first)
-        kept = keep.reshape(-1).nonzero()[:, 0]  # (K,)
-        slot, tree = kept % S, kept // S
-        kept_index = torch.full((n * S,), -1, dtype=torch.long, device=dev)
-        kept_index[kept] = torch.arange(len(kept), device=dev)
-        parent = kept_index[tree * S + self.slot_parent[slot].clamp(min=0)]  # (K,) a main branch points to itself
-        depth = slot_depth[slot]  # (K,)
-        sc = self.s.reshape(-1)[kept].clamp(0, 1)  # (K,)
-        # integrate every kept slot from the origin at once, then place them layer by layer
-        raw = inverse_srvf(self.q.reshape(n * S, M, d)[kept])  # (K, T, d)
-        start = self.root[tree]  # (K, d); main branches start at the root
-        for k in range(1, len(depth_slots) + 1):
-            idx = (depth == k).nonzero()[:, 0]
-            par = parent[idx]
-            start[idx] = interpolate_curve(raw[par] + start[par, None], sc[idx, None])[:, 0]
-        curves = raw + start[:, None]  # (K, T, d)
-        # bifurcation parameter -> arc-length fraction on the (not yet resampled) parent curve
-        seg = (curves[:, 1:] - curves[:, :-1]).norm(dim=-1)  # (K, M)
-        arc = torch.where(slot > 0, _arc_fractions(seg[parent], sc), torch.zeros_like(sc))
-        arc_table = torch.zeros(n * S, dtype=arc.dtype, device=dev)
-        arc_table[kept] = arc.detach()
-        order, local_parent, counts = _depth_first_order(keep, arc_table.reshape(n, S), self.slot_parent,
+        # arc-length fraction of each kept slot's attachment on its parent (K kept slots, parents first)
+        kept = keep.reshape(-1).nonzero()[:, 0]  # (K,) flat index tree * S + slot
+        slot = kept % S
+        parent_flat = kept - slot + self.slot_parent[slot].clamp(min=0)  # (K,) a main branch points to itself
+        sc_all = self.s.clamp(0, 1).reshape(n * S)
+        arc_table = torch.zeros(n * S, dtype=self.s.dtype, device=dev)
+        arc_table[kept] = torch.where(slot > 0, _arc_fractions(seg_all[parent_flat], sc_all[kept]), 0)
+        # packed depth-first order; from here on everything is in that order
+        order, local_parent, counts = _depth_first_order(keep, arc_table.detach().reshape(n, S), self.slot_parent,
                                                          depth_slots, depth_parents)
-        perm = kept_index[order]  # (K,) kept index of every packed branch
-        packed_of = torch.empty_like(perm)
-        packed_of[perm] = torch.arange(len(perm), device=dev)
-        gp = packed_of[parent[perm]]  # (K,) packed index of the parent (itself for a main branch)
-        s_out = arc[perm].clamp(0, 1)
-        pts = _resample_arc_length(curves[perm], seg[perm])
+        slot, tree = order % S, order // S
+        packed_index = torch.full((n * S,), -1, dtype=torch.long, device=dev)
+        packed_index[order] = torch.arange(len(order), device=dev)
+        gp = packed_index[order - slot + self.slot_parent[slot].clamp(min=0)]  # (K,) a main branch: itself
+        depth = slot_depth[slot]
+        sc = sc_all[order]
+        # integrate every branch from the origin at once, then place them layer by layer
+        raw = _integrate(self.q.reshape(n * S, M, d)[order], seg_all[order])  # (K, T, d)
+        start = self.root[tree]  # (K, d); main branches start at the root
+        layers = [(depth == k).nonzero()[:, 0] for k in range(1, len(depth_slots) + 1)]
+        for idx in layers:
+            par = gp[idx]
+            start[idx] = interpolate_curve(raw[par] + start[par, None], sc[idx, None])[:, 0]
+        pts = _resample_arc_length(raw + start[:, None], seg_all[order])
         # resampling moves a parent's points by chord effects: snap each child back onto its parent,
         # layer by layer so that a parent is final before its children
-        packed_depth = depth[perm]
-        for k in range(1, len(depth_slots) + 1):
-            idx = (packed_depth == k).nonzero()[:, 0]
+        s_out = arc_table[order].clamp(0, 1)
+        for idx in layers:
             if len(idx):
                 pts[idx, 0] = interpolate_curve(pts[gp[idx]], s_out[idx, None])[:, 0]
-        return Trees(pts, local_parent, s_out, counts, slot[perm])
+        return Trees(pts, local_parent, s_out, counts, slot)
 
 
 def _slot_depth(slot_parent: Tensor) -> Tensor:
@@ -348,6 +345,18 @@ def _depth_first_order(keep: Tensor, arc: Tensor, slot_parent: Tensor, depth_slo
     return order, parent_pos.reshape(-1)[order], counts
 
 
+def _integrate(q: Tensor, seg: Tensor) -> Tensor:
+    """``inverse_srvf(q)`` from the origin, given the segment lengths ``seg = |q|^2 / M``: ``(K, M, d) -> (K, M+1, d)``.
+
+    A step is ``q |q| / M = q sqrt(seg / M)``; the square root is guarded so null segments give zero gradients.
+    """
+    M = q.shape[1]
+    nonzero = seg > 0
+    factor = torch.where(nonzero, (torch.where(nonzero, seg, 1) / M).sqrt(), 0)
+    steps = q * factor.unsqueeze(-1)
+    return torch.cat([torch.zeros_like(steps[:, :1]), steps.cumsum(1)], dim=1)
+
+
 def _resample_arc_length(points: Tensor, seg: Tensor) -> Tensor:
     """Polylines ``points (K, T, d)`` with segment lengths ``seg (K, T-1)`` resampled uniformly in arc length.
 
@@ -363,5 +372,6 @@ def _resample_arc_length(points: Tensor, seg: Tensor) -> Tensor:
     frac = torch.where(width > 0, (target - c_lo) / torch.where(width > 0, width, 1), 0).clamp(0, 1)
     flat = points.reshape(K * T, d)
     row = (torch.arange(K, device=points.device) * T)[:, None]
-    p_lo, p_hi = flat[(row + lo).reshape(-1)].reshape(K, T, d), flat[(row + hi).reshape(-1)].reshape(K, T, d)
+    p_lo = flat.index_select(0, (row + lo).reshape(-1)).reshape(K, T, d)
+    p_hi = flat.index_select(0, (row + hi).reshape(-1)).reshape(K, T, d)
     return p_lo + frac.unsqueeze(-1) * (p_hi - p_lo)
