@@ -289,8 +289,8 @@ def _arc_fractions(seg: Tensor, s: Tensor) -> Tensor:
     ``seg (..., T-1)`` (on the uniform parameter grid). A zero-length polyline gives ``s`` back.
     """
     T = seg.shape[-1] + 1
-    total = seg.sum(-1)
     cum = torch.cat([torch.zeros_like(seg[..., :1]), seg.cumsum(-1)], dim=-1)  # (..., T)
+    total = cum[..., -1]  # not seg.sum(): s = 1 must give exactly 1
     x = s * (T - 1)
     lo = x.detach().floor().clamp(0, T - 2).long().unsqueeze(-1)
     frac = x - lo[..., 0].to(x.dtype)
