@@ -268,8 +268,22 @@ def test_round_trip_of_a_tree() -> None:
     torch.testing.assert_close(back.points, tree.points, atol=1e-9, rtol=0)
 
 
+@pytest.fixture
+def no_scalars_with_grad(monkeypatch: pytest.MonkeyPatch) -> None:
+    """``float()`` / ``.item()`` of a tensor that requires grad raises (torch only warns, and only once)."""
+    for name in ("__float__", "item"):
+        original = getattr(torch.Tensor, name)
+
+        def guarded(self: Tensor, *args: object, _original=original, _name=name) -> object:
+            if self.requires_grad:
+                raise AssertionError(f"{_name} of a tensor that requires grad")
+            return _original(self, *args)
+
+        monkeypatch.setattr(torch.Tensor, name, guarded)
+
+
 @pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
-def test_gradients_match_reference_without_warnings(dtype: torch.dtype) -> None:
+def test_gradients_match_reference_without_warnings(dtype: torch.dtype, no_scalars_with_grad: None) -> None:
     gen = torch.Generator().manual_seed(9)
     a = random_aligned(gen, n=5, S=15, dtype=dtype)
     # s away from 0 and 1, where the clamps' one-sided gradients hinge on rounding
@@ -295,7 +309,7 @@ def test_gradients_match_reference_without_warnings(dtype: torch.dtype) -> None:
     assert grads[0][0].abs().sum() > 0 and grads[0][1][:, 1:].abs().sum() > 0
 
 
-def test_decode_is_differentiable_in_coefficients() -> None:
+def test_decode_is_differentiable_in_coefficients(no_scalars_with_grad: None) -> None:
     """Decoding features with gradients (the generative model's path) neither warns nor breaks."""
     gen = torch.Generator().manual_seed(10)
     a = random_aligned(gen, n=3, S=10)
