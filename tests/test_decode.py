@@ -340,3 +340,15 @@ def test_srvf_of_decoded_main_branch() -> None:
     out = a.to_trees()
     torch.testing.assert_close(out.branch_lengths(), curve_length(curve)[None], atol=1e-3, rtol=0)
     torch.testing.assert_close(out.points[0, [0, -1]], curve[[0, -1]], atol=1e-12, rtol=0)
+
+
+def test_empty_batch_and_mixed_dtypes() -> None:
+    gen = torch.Generator().manual_seed(12)
+    a = random_aligned(gen, n=3, S=6)
+    empty = a[[]].to_trees(0.05)
+    assert empty.num_trees == 0 and empty.points.shape == (0, a.T, 3)
+    # s and root in float64 with q in float32: the output follows q
+    b = AlignedTrees(a.q.float(), a.s, a.present, a.root, a.slot_parent, a.slot_depth, a.source)
+    out, ref = b.to_trees(0.05), a.to_trees(0.05)
+    assert out.points.dtype == out.s.dtype == torch.float32
+    torch.testing.assert_close(out.points, ref.points.float(), atol=1e-4, rtol=0)

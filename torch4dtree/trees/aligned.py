@@ -246,8 +246,8 @@ class AlignedTrees:
         kept = keep.reshape(-1).nonzero()[:, 0]  # (K,) flat index tree * S + slot
         slot = kept % S
         parent_flat = kept - slot + self.slot_parent[slot].clamp(min=0)  # (K,) a main branch points to itself
-        sc_all = self.s.clamp(0, 1).reshape(n * S)
-        arc_table = torch.zeros(n * S, dtype=self.s.dtype, device=dev)
+        sc_all = self.s.to(self.q.dtype).clamp(0, 1).reshape(n * S)
+        arc_table = torch.zeros(n * S, dtype=self.q.dtype, device=dev)
         arc_table[kept] = torch.where(slot > 0, _arc_fractions(seg_all[parent_flat], sc_all[kept]), 0)
         # packed depth-first order; from here on everything is in that order
         order, local_parent, counts = _depth_first_order(keep, arc_table.detach().reshape(n, S), self.slot_parent,
@@ -260,7 +260,7 @@ class AlignedTrees:
         sc = sc_all[order]
         # integrate every branch from the origin at once, then place them layer by layer
         raw = _integrate(self.q.reshape(n * S, M, d)[order], seg_all[order])  # (K, T, d)
-        start = self.root[tree]  # (K, d); main branches start at the root
+        start = self.root.to(self.q.dtype)[tree]  # (K, d); main branches start at the root
         layers = [(depth == k).nonzero()[:, 0] for k in range(1, len(depth_slots) + 1)]
         for idx in layers:
             par = gp[idx]
@@ -321,7 +321,7 @@ def _depth_first_order(keep: Tensor, arc: Tensor, slot_parent: Tensor, depth_slo
         size.index_add_(1, parents, size[:, slots])
     # sort the slots by (parent, arc, -slot) with stable sorts, least significant key first
     before = torch.zeros(n, S, dtype=torch.long, device=dev)
-    if S > 1:
+    if S > 1 and n > 0:
         perm = torch.arange(S - 1, 0, -1, device=dev).expand(n, -1)  # (n, S-1) slots, higher first
         perm = perm.gather(1, arc.gather(1, perm).argsort(dim=1, stable=True))
         perm = perm.gather(1, slot_parent[perm].argsort(dim=1, stable=True))
