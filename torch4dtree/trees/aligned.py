@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from ..curves.srvf import curve_length, interpolate_curve, inverse_srvf, resample_polylines, srvf, srvf_sq_norm
+from ..curves.srvf import interpolate_curve, srvf, srvf_sq_norm
 from .structures import Trees
 
 __all__ = ["AlignedTrees", "Lambdas", "slot_weights", "subtree_sq_norms"]
@@ -223,86 +223,155 @@ class AlignedTrees:
         with their descendants. The curves are then resampled uniformly in arc length, so ``s`` is
         converted to the arc-length fraction of the attachment point. The branch ``label`` is the slot
         index, so branches keep their identity across a geodesic. The main branch is always kept.
+        Within a tree, branches are in depth-first order, children by increasing arc-length ``s`` (equal
+        ``s``: the higher slot first).
+
+        Batched over trees: slots are processed depth by depth for the whole batch. The points are
+        differentiable in ``q``, ``s`` and ``root`` given the discrete choices (kept slots, order).
         """
         n, S, M, d = self.q.shape
-        parent = self.slot_parent.tolist()
-        lengths = srvf_sq_norm(self.q)  # (n, S) = branch lengths
-        pts_all: list[Tensor] = []
-        par_all: list[int] = []
-        s_all: list[Tensor] = []
-        lab_all: list[int] = []
-        counts: list[int] = []
-        for t in range(n):
-            keep = [True] * S
-            for k in range(1, S):
-                keep[k] = keep[parent[k]] and bool(lengths[t, k] > eps)
-            curves: dict[int, Tensor] = {}
-            arc_s: dict[int, Tensor] = {}
-            for k in range(S):  # parents first, so a child's parent curve exists
-                if not keep[k]:
-                    continue
-                if k == 0:
-                    start = self.root[t]
-                    arc_s[k] = self.s.new_zeros(())
-                else:
-                    pc = curves[parent[k]]
-                    sk = self.s[t, k].clamp(0, 1)
-                    start = interpolate_curve(pc[None], sk.reshape(1, 1))[0, 0]
-                    arc_s[k] = _arc_fraction(pc, sk)
-                curves[k] = inverse_srvf(self.q[t, k], start)
-            children: dict[int, list[int]] = {k: [] for k in curves}
-            for k in curves:
-                if k > 0:
-                    children[parent[k]].append(k)
-            order: list[int] = []
-            stack = [0]
-            while stack:  # depth-first, children by increasing s (the Trees convention)
-                k = stack.pop()
-                order.append(k)
-                stack.extend(sorted(children[k], key=lambda c: -float(arc_s[c])))
-            new = {k: i for i, k in enumerate(order)}
-            pts_all.append(torch.stack([curves[k] for k in order]))
-            par_all += [-1 if k == 0 else new[parent[k]] for k in order]
-            s_all += [arc_s[k] for k in order]
-            lab_all += order
-            counts.append(len(order))
-        raw = torch.cat(pts_all)
-        T = M + 1
-        dev = raw.device
-        out = Trees(_resample_or_keep(raw, T), torch.tensor(par_all, dtype=torch.long, device=dev),
-                    torch.stack(s_all).to(raw.dtype).clamp(0, 1), torch.tensor(counts, dtype=torch.long, device=dev),
-                    torch.tensor(lab_all, dtype=torch.long, device=dev))
-        # resampling moves a parent's points by chord effects: snap each child back onto its parent
-        side = out.parent >= 0
-        if bool(side.any()):
-            pts = out.points.clone()
-            gp = out.global_parent.tolist()
-            for i in side.nonzero()[:, 0].tolist():  # parents first, so a parent is final before its children
-                pts[i, 0] = interpolate_curve(pts[gp[i]][None], out.s[i].reshape(1, 1))[0, 0]
-            out = out.with_points(pts)
-        return out
+        dev = self.q.device
+        slot_depth = _slot_depth(self.slot_parent)
+        depth_slots = [(slot_depth == k).nonzero()[:, 0] for k in range(1, int(slot_depth.max()) + 1)]
+        depth_parents = [self.slot_parent[x] for x in depth_slots]
+        # segment lengths of every branch, |q_k|^2 / M, known before integrating: (n * S, M)
+        # (a product with ones: torch reduces over a last dim of size 3 several times slower)
+        seg_all = (self.q * self.q).reshape(n * S, M, d) @ self.q.new_ones(d) / M
+        # which slots survive: long enough and every ancestor kept (a detached comparison, no grad needed)
+        long_enough = (seg_all.detach().sum(-1) > eps).reshape(n, S)
+        keep = torch.ones(n, S, dtype=torch.bool, device=dev)
+        for slots, parents in zip(depth_slots, depth_parents):
+            keep[:, slots] = keep[:, parents] & long_enough[:, slots]
+        # arc-length fraction of each kept slot's attachment on its parent (K kept slots, parents first)
+        kept = keep.reshape(-1).nonzero()[:, 0]  # (K,) flat index tree * S + slot
+        slot = kept % S
+        parent_flat = kept - slot + self.slot_parent[slot].clamp(min=0)  # (K,) a main branch points to itself
+        sc_all = self.s.to(self.q.dtype).clamp(0, 1).reshape(n * S)
+        arc_table = torch.zeros(n * S, dtype=self.q.dtype, device=dev)
+        arc_table[kept] = torch.where(slot > 0, _arc_fractions(seg_all[parent_flat], sc_all[kept]), 0)
+        # packed depth-first order; from here on everything is in that order
+        order, local_parent, counts = _depth_first_order(keep, arc_table.detach().reshape(n, S), self.slot_parent,
+                                                         depth_slots, depth_parents)
+        slot, tree = order % S, order // S
+        packed_index = torch.full((n * S,), -1, dtype=torch.long, device=dev)
+        packed_index[order] = torch.arange(len(order), device=dev)
+        gp = packed_index[order - slot + self.slot_parent[slot].clamp(min=0)]  # (K,) a main branch: itself
+        depth = slot_depth[slot]
+        sc = sc_all[order]
+        # integrate every branch from the origin at once, then place them layer by layer
+        raw = _integrate(self.q.reshape(n * S, M, d)[order], seg_all[order])  # (K, T, d)
+        start = self.root.to(self.q.dtype)[tree]  # (K, d); main branches start at the root
+        layers = [(depth == k).nonzero()[:, 0] for k in range(1, len(depth_slots) + 1)]
+        for idx in layers:
+            par = gp[idx]
+            start[idx] = interpolate_curve(raw[par] + start[par, None], sc[idx, None])[:, 0]
+        pts = _resample_arc_length(raw + start[:, None], seg_all[order])
+        # resampling moves a parent's points by chord effects: snap each child back onto its parent,
+        # layer by layer so that a parent is final before its children
+        s_out = arc_table[order].clamp(0, 1)
+        for idx in layers:
+            if len(idx):
+                pts[idx, 0] = interpolate_curve(pts[gp[idx]], s_out[idx, None])[:, 0]
+        return Trees(pts, local_parent, s_out, counts, slot)
 
 
-def _arc_fraction(curve: Tensor, s: Tensor) -> Tensor:
-    """Arc-length fraction of the point at parameter ``s`` of a polyline ``(T, d)``."""
-    T = curve.shape[0]
-    seg = (curve[1:] - curve[:-1]).norm(dim=-1)
-    total = seg.sum()
-    if not bool(total > 0):
-        return s
-    cum = torch.cat([seg.new_zeros(1), seg.cumsum(0)])
+def _slot_depth(slot_parent: Tensor) -> Tensor:
+    """``(S,)`` layer of every slot, from ``slot_parent (S,)`` (parents first)."""
+    par = slot_parent.tolist()
+    depth = [0] * len(par)
+    for k in range(1, len(par)):  # one pass over small integers: parents come first
+        depth[k] = depth[par[k]] + 1
+    return torch.tensor(depth, dtype=torch.long, device=slot_parent.device)
+
+
+def _arc_fractions(seg: Tensor, s: Tensor) -> Tensor:
+    """Arc-length fraction of the point at parameter ``s (...)`` in [0, 1] of polylines with segment lengths
+    ``seg (..., T-1)`` (on the uniform parameter grid). A zero-length polyline gives ``s`` back.
+    """
+    T = seg.shape[-1] + 1
+    cum = torch.cat([torch.zeros_like(seg[..., :1]), seg.cumsum(-1)], dim=-1)  # (..., T)
+    total = cum[..., -1]  # not seg.sum(): s = 1 must give exactly 1
     x = s * (T - 1)
-    lo = int(torch.clamp(x.floor(), 0, T - 2))
-    frac = x - lo
-    return ((cum[lo] + frac * seg[lo]) / total).clamp(0, 1)
+    lo = x.detach().floor().clamp(0, T - 2).long().unsqueeze(-1)
+    frac = x - lo[..., 0].to(x.dtype)
+    at = cum.gather(-1, lo)[..., 0] + frac * seg.gather(-1, lo)[..., 0]
+    positive = total > 0
+    return torch.where(positive, (at / torch.where(positive, total, 1)).clamp(0, 1), s)
 
 
-def _resample_or_keep(points: Tensor, T: int) -> Tensor:
-    """Arc-length resampling of ``(N, T, d)`` polylines; zero-length ones are kept as they are."""
-    length = curve_length(points)
-    out = points.clone()
-    ok = length > 0
-    if bool(ok.any()):
-        counts = torch.full((int(ok.sum()),), points.shape[1], device=points.device)
-        out[ok] = resample_polylines(points[ok], counts, T)
-    return out
+def _depth_first_order(keep: Tensor, arc: Tensor, slot_parent: Tensor, depth_slots: list[Tensor],
+                       depth_parents: list[Tensor]) -> tuple[Tensor, Tensor, Tensor]:
+    """Packed depth-first order of the kept slots of every tree, children by increasing ``arc``.
+
+    Args:
+        keep: ``(n, S)`` bool kept slots (slot 0 always; a kept slot's parent is kept).
+        arc: ``(n, S)`` sort key of each slot among its siblings (ties: higher slot first).
+        slot_parent: ``(S,)``.
+        depth_slots, depth_parents: per layer 1, 2, ..., its slots and their parent slots (``(k,)`` long each).
+
+    Returns:
+        ``order (N,)`` flat index ``tree * S + slot`` of each packed branch, ``parent (N,)`` its parent's
+        index within its tree (``-1`` for the main branch), ``counts (n,)`` branches per tree.
+    """
+    n, S = keep.shape
+    dev = keep.device
+    # subtree sizes, deepest layer first (dropped slots count 0)
+    size = keep.long()
+    for slots, parents in zip(reversed(depth_slots), reversed(depth_parents)):
+        size.index_add_(1, parents, size[:, slots])
+    # sort the slots by (parent, arc, -slot) with stable sorts, least significant key first
+    before = torch.zeros(n, S, dtype=torch.long, device=dev)
+    if S > 1 and n > 0:
+        perm = torch.arange(S - 1, 0, -1, device=dev).expand(n, -1)  # (n, S-1) slots, higher first
+        perm = perm.gather(1, arc.gather(1, perm).argsort(dim=1, stable=True))
+        perm = perm.gather(1, slot_parent[perm].argsort(dim=1, stable=True))
+        # every row now lists the same parents in the same order: one group of siblings per parent
+        sorted_parent = slot_parent[perm[0]]
+        group_start = torch.searchsorted(sorted_parent, sorted_parent)
+        sz = size.gather(1, perm)
+        preceding = sz.cumsum(1) - sz
+        before.scatter_(1, perm, preceding - preceding[:, group_start])  # sizes of earlier siblings
+    # pre-order position: right after the parent and the subtrees of the earlier siblings
+    pos = torch.zeros(n, S, dtype=torch.long, device=dev)
+    for slots, parents in zip(depth_slots, depth_parents):
+        pos[:, slots] = pos[:, parents] + 1 + before[:, slots]
+    counts = keep.sum(1)
+    offset = torch.cat([counts.new_zeros(1), counts.cumsum(0)[:-1]])
+    flat_kept = keep.reshape(-1).nonzero()[:, 0]
+    packed = (offset[:, None] + pos).reshape(-1)[flat_kept]
+    order = torch.empty_like(flat_kept)
+    order[packed] = flat_kept
+    parent_pos = torch.where(slot_parent >= 0, pos[:, slot_parent.clamp(min=0)], -1)  # (n, S)
+    return order, parent_pos.reshape(-1)[order], counts
+
+
+def _integrate(q: Tensor, seg: Tensor) -> Tensor:
+    """``inverse_srvf(q)`` from the origin, given the segment lengths ``seg = |q|^2 / M``: ``(K, M, d) -> (K, M+1, d)``.
+
+    A step is ``q |q| / M = q sqrt(seg / M)``; the square root is guarded so null segments give zero gradients.
+    """
+    M = q.shape[1]
+    nonzero = seg > 0
+    factor = torch.where(nonzero, (torch.where(nonzero, seg, 1) / M).sqrt(), 0)
+    steps = q * factor.unsqueeze(-1)
+    return torch.cat([torch.zeros_like(steps[:, :1]), steps.cumsum(1)], dim=1)
+
+
+def _resample_arc_length(points: Tensor, seg: Tensor) -> Tensor:
+    """Polylines ``points (K, T, d)`` with segment lengths ``seg (K, T-1)`` resampled uniformly in arc length.
+
+    A zero-length polyline (all points equal) comes back unchanged.
+    """
+    K, T, d = points.shape
+    cum = torch.cat([torch.zeros_like(seg[:, :1]), seg.cumsum(1)], dim=1)  # (K, T)
+    target = torch.linspace(0, 1, T, dtype=points.dtype, device=points.device) * cum[:, -1:]  # (K, T)
+    hi = torch.searchsorted(cum, target, right=True).clamp(1, T - 1)
+    lo = hi - 1
+    c_lo, c_hi = cum.gather(1, lo), cum.gather(1, hi)
+    width = c_hi - c_lo
+    frac = torch.where(width > 0, (target - c_lo) / torch.where(width > 0, width, 1), 0).clamp(0, 1)
+    flat = points.reshape(K * T, d)
+    row = (torch.arange(K, device=points.device) * T)[:, None]
+    p_lo = flat.index_select(0, (row + lo).reshape(-1)).reshape(K, T, d)
+    p_hi = flat.index_select(0, (row + hi).reshape(-1)).reshape(K, T, d)
+    return p_lo + frac.unsqueeze(-1) * (p_hi - p_lo)
