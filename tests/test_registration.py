@@ -302,11 +302,11 @@ def test_children_aware_parent_warp():
     B = Trees.from_branches([[stem.numpy(), (leaf + torch.tensor([0, 0, 0.6])).numpy()]], [[-1, 0]], T=T,
                             dtype=torch.float64)
     lam = (1.0, 1.0, 10.0)  # matching the children (<= 0.9) beats leaving both unmatched (1.6)
-    with_refit = register_trees(A, B, lambdas=lam)
+    with_refit = register_trees(A, B, lambdas=lam, lp_relative=False)  # lp in the data's units
     rounds = reg.LANDMARK_ROUNDS
     try:
         reg.LANDMARK_ROUNDS = 0
-        stem_only = register_trees(A, B, lambdas=lam)
+        stem_only = register_trees(A, B, lambdas=lam, lp_relative=False)
     finally:
         reg.LANDMARK_ROUNDS = rounds
     assert with_refit.matches == stem_only.matches == [(0, 0), (1, 1)]

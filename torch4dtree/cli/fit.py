@@ -17,8 +17,6 @@ import time
 from pathlib import Path
 from typing import Any
 
-import torch
-
 from .options import add_config_arguments, config_from_args
 
 FIGURE_COLUMNS = 6
@@ -28,7 +26,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("dataset", help="a dataset folder: one subfolder of frame files (.swc / .mat) per 4D tree")
     p.add_argument("--out", required=True, help="the run directory to create")
     add_config_arguments(p, registration=True)
-    p.add_argument("--n-t", type=int, default=None, help="common time samples of the trajectories (config n_t)")
+    p.add_argument("--n-t", type=int, default=None,
+                   help="common time samples of the trajectories (default: the config's n_t, 32)")
     p.add_argument("--seed", type=int, default=0, help="seed of the sample figure (default 0)")
     p.add_argument("--no-figures", action="store_true", help="skip the rendered figures")
     p.add_argument("--overwrite", action="store_true", help="replace an existing run directory")
@@ -49,6 +48,8 @@ def _logger(path: Path, quiet: bool) -> logging.Logger:
 
 
 def _stats(x: list[float]) -> dict[str, float]:
+    import torch
+
     t = torch.tensor(x, dtype=torch.float64)
     if len(t) == 0:
         return {"mean": float("nan"), "median": float("nan"), "max": float("nan")}
@@ -84,6 +85,8 @@ def report_markdown(r: dict[str, Any]) -> str:
 
 
 def build_report(model: Any, dataset: str, seqs: list[Any], seconds: dict[str, float]) -> dict[str, Any]:
+    import torch
+
     rep = model.report_
     pop = rep["population"]
     times = torch.cat([s.times for s in seqs])
@@ -109,6 +112,8 @@ def build_report(model: Any, dataset: str, seqs: list[Any], seconds: dict[str, f
 
 def write_figures(model: Any, out: Path, size: int, seed: int, n_samples: int = 3) -> list[str]:
     """``mean.png``, ``modes.png``, ``samples.png`` in ``out``."""
+    import torch
+
     from ..render import render_grid, save_image
 
     written = []
@@ -140,6 +145,7 @@ def _columns(seq: Any) -> Any:
 
 
 def run(args: argparse.Namespace) -> int:
+    import torch
     from tqdm.auto import tqdm
 
     from ..io import read_sequence, sequence_folders

@@ -11,9 +11,7 @@ import dataclasses
 import json
 from pathlib import Path
 
-import torch
-
-from ..trees.structures import TreeError
+from .options import UsageError
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -22,12 +20,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--until", type=float, required=True, help="forecast up to this time (data units)")
     p.add_argument("--steps", type=int, default=8, help="forecast times after the last observation (default 8)")
     p.add_argument("--n", type=int, default=3, help="conditional samples (default 3)")
-    p.add_argument("--seed", type=int, default=0, help="random seed of the samples")
+    p.add_argument("--seed", type=int, default=0, help="random seed of the samples (default: %(default)s)")
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--overwrite", action="store_true", help="replace existing files in --out")
 
 
 def run(args: argparse.Namespace) -> int:
+    import torch
+
     from ..config import Config
     from ..io import read_sequence, write_sequence
     from ..io.files import write_text_safely
@@ -40,9 +40,9 @@ def run(args: argparse.Namespace) -> int:
     seq = read_sequence(Path(args.sequence), opts).sequence
     last = float(seq.times[-1])
     if not args.until > last:
-        raise TreeError(f"--until {args.until} must be after the last observed time {last}")
+        raise UsageError(f"--until {args.until} must be after the last observed time {last}")
     if args.steps < 1 or args.n < 0:
-        raise TreeError("--steps must be at least 1 and --n at least 0")
+        raise UsageError("--steps must be at least 1 and --n at least 0")
     times = torch.linspace(last, args.until, args.steps + 1, dtype=torch.float64)[1:]
     f = model.forecast(seq, times, n=args.n, generator=torch.Generator().manual_seed(args.seed))
     out = Path(args.out)

@@ -12,9 +12,7 @@ import json
 import time
 from pathlib import Path
 
-import torch
-
-from ..trees.structures import TreeError
+from .options import UsageError
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -28,12 +26,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    import torch
+
     from ..io import write_sequence
     from ..io.files import write_text_safely
     from ..model import load
 
     if args.n < 1:
-        raise TreeError(f"--n must be at least 1, got {args.n}")
+        raise UsageError(f"--n must be at least 1, got {args.n}")
     out = Path(args.out)
     if out.exists() and any(out.iterdir()) and not args.overwrite:
         raise FileExistsError(f"{out} exists and is not empty; pass --overwrite to replace its files")

@@ -37,7 +37,7 @@ from torch import Tensor
 
 from ..curves.srvf import interpolate_curve, inverse_srvf, srvf, srvf_sq_norm
 from ..trees.aligned import AlignedTrees, Lambdas, slot_weights
-from ..trees.registration import TreeRegistration, _check_lambdas, register_to_reference
+from ..trees.registration import RELATIVE_LP_SCALE, TreeRegistration, _check_lambdas, register_to_reference
 from ..trees.structures import Trees
 from .fitted import FittedModule, NotFittedError
 
@@ -305,8 +305,8 @@ class KarcherMean(FittedModule):
         registration: keyword arguments of :func:`~torch4dtree.trees.register_to_reference` (``n_starts``,
             ``neighbourhood``, ``up``...; its ``max_iters`` / ``tol`` are the registration's own).
         lp_relative: ``lp`` is relative to the trees' size (as in :func:`~torch4dtree.trees.register_to_reference`):
-            ``fit`` multiplies it once by the median main-branch length of the trees, so that one metric holds
-            for every round; afterwards ``lambdas`` holds the effective weights and ``lp_relative`` is False.
+            ``fit`` multiplies it once by ``RELATIVE_LP_SCALE`` times the trees' median main-branch length (one metric
+            for every round); afterwards ``lambdas`` holds the effective weights and ``lp_relative`` is False.
 
     Fitted buffers (float in the dtype of the fitted trees; ``.to()`` moves and casts them):
     ``mean_q (S, M, d)``, ``mean_s (S,)``, ``mean_root (d,)``, ``slot_parent (S,)``, ``slot_depth (S,)``.
@@ -543,7 +543,8 @@ class KarcherMean(FittedModule):
         start = time.perf_counter()
         if self.lp_relative:  # one metric for all rounds: lp relative to the trees' median main-branch length
             main = trees.branch_lengths()[trees.main_index]
-            self.lambdas = (self.lambdas[0], self.lambdas[1], self.lambdas[2] * float(main.median()))
+            scale = RELATIVE_LP_SCALE * float(main.median())
+            self.lambdas = (self.lambdas[0], self.lambdas[1], self.lambdas[2] * scale)
             self.lp_relative = False
         mean, forms = self._initial_mean(trees)
         carry: _Carry | None = None

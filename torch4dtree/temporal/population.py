@@ -31,7 +31,7 @@ from torch import Tensor
 from ..space.fitted import FittedModule, NotFittedError
 from ..space.pca import TreePCA
 from ..trees.aligned import AlignedTrees, slot_weights
-from ..trees.registration import _check_lambdas, register_to_reference
+from ..trees.registration import RELATIVE_LP_SCALE, _check_lambdas, register_to_reference
 from ..trees.structures import Trees, TreeSequence
 from .spatiotemporal import combine_many, place_sequence, representative_tree
 from .trajectory import resample_trajectory
@@ -153,7 +153,7 @@ class Population(FittedModule):
         t0 = time.perf_counter()
         lengths = torch.stack([s.frames[len(s) - 1].branch_lengths()[0] for s in seqs])
         lm, ls, lp = self.lambdas
-        lam = (lm, ls, lp * float(lengths.median()))
+        lam = (lm, ls, lp * RELATIVE_LP_SCALE * float(lengths.median()))
         from tqdm.auto import tqdm
 
         aseqs = [register_sequence(s, lam, progress=False, lp_relative=False, **self.registration)
