@@ -257,7 +257,7 @@ T_SMALL = 24
 # lp = 50: with lp = 1 the position term is negligible for plants in mm and similar leaves at neighbouring
 # nodes swap (tomato: worst consecutive pair 92.9 % correct over 6 plants x 8 frames); lp in [30, 100] gives
 # 100 % on tomato and maize, lp >= 300 starts to hurt maize (bench/temporal.py)
-LAMBDAS = (1.0, 1.0, 3.0)  # lp relative to the plant (register_sequence default)
+LAMBDAS = (1.0, 1.0, 9.0)  # lp relative to the plant (register_sequence default)
 
 
 @pytest.fixture(scope="module", params=["tomato", "maize"])

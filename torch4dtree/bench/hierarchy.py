@@ -109,12 +109,12 @@ if __name__ == "__main__":  # pragma: no cover
 
 
 def identity_accuracy(kinds: tuple[str, ...] = ("tomato", "maize", "bean"), seeds: tuple[int, ...] = (0, 1, 2),
-                      rules: tuple[str, ...] = HIERARCHIES, lp_per_length: tuple[float | None, ...] = (1.0,),
+                      rules: tuple[str, ...] = HIERARCHIES, lp_per_length: tuple[float | None, ...] = (9.0,),
                       n_frames: int = 10, T: int = 32, cross_plant: bool = True) -> list[dict]:
     """Identity precision / recall of registrations of realistic synthetic plants against their organ truth.
 
-    For every kind, hierarchy rule and relative position weight (``lp_per_length``: ``lp`` times the
-    reference's main-branch length; ``None``: ``lp = 1`` in the data's units, the old default):
+    For every kind, hierarchy rule and relative position weight (``lp_per_length``: the relative ``lp``,
+    9 = within-sequence registration's default; ``None``: ``lp = 1`` in the data's units, the old default):
     consecutive frames of each plant (``seeds`` plants) and, with ``cross_plant``, the same frame of two
     different plants (frames 3, 6, 9; vertical rotation). Rows are ``{kind, rule, lp_per_length,
     consecutive: {precision, recall, pairs}, cross: {...}, seconds}``, micro-averaged (counts pooled).

@@ -472,12 +472,13 @@ def _check_lambdas(lambdas: Sequence[float]) -> Lambdas:
 
 
 # with lp_relative, lp = 1 weighs bifurcation positions like RELATIVE_LP_SCALE x the reference's main-branch
-# length. Chosen by measurement (T = 32 / 128): consecutive-frame identity precision on realistic synthetic
-# maize 90 % / 94 % / 97 % at 0.1 / 0.3 / 1 (tomato and bean 98 % at all three), while cycle consistency on the
-# paper's .mat trees (24 pairs, T = 128, eps 0.1 / 0.05 / 0.02 / 0.01) was 0 / 0 / 0.7 / 2.2 %, 0 / 0.1 / 1.2 /
-# 3.2 % and 3.3 / 3.9 / 5.4 / 7.6 % (the old absolute lp = 1: 0 / 0 / 0.7 / 2.2 %): positions far from a
-# stem's arbitrary warp make matches that the reverse registration does not undo.
-RELATIVE_LP_SCALE = 0.3
+# length. A trade-off, measured (T = 32 / 128): consecutive-frame identity precision on realistic synthetic maize
+# 90 % / 94 % / 97 % at 0.1 / 0.3 / 1 x L (tomato and bean 98 % at all three), while cycle consistency on the
+# paper's .mat trees (24 pairs, T = 128, eps 0.1 / 0.05 / 0.02 / 0.01) was 0 / 0 / 0.7 / 2.2 % (as with the old
+# absolute lp = 1), 0 / 0.1 / 1.2 / 3.2 % and 3.3 / 3.9 / 5.4 / 7.6 %: position terms pull matches away from what
+# a stem's weakly determined warp implies, and the reverse registration does not undo them. The library default
+# keeps cycle consistency; within-sequence registration, where identities are chained, uses lp = 9 (0.9 x L).
+RELATIVE_LP_SCALE = 0.1
 
 
 def effective_lambdas(lambdas: Sequence[float], reference: Trees) -> Lambdas:
@@ -514,11 +515,11 @@ def register_to_reference(trees: Trees, reference: Trees, lambdas: Sequence[floa
             (``.mat`` trees, T = 256: 0.27 -> 0.59 % at eps 0.1 with ``refine=4``), so it is off.
         prune: skip subtree pairs that provably cannot be matched (exact: does not change the result).
         lp_relative: the bifurcation weight scales with the tree: the effective ``lp`` is ``lambdas[2]`` times
-            ``RELATIVE_LP_SCALE`` (0.3) times the reference's main-branch length ``L`` (default). The shape terms
+            ``RELATIVE_LP_SCALE`` (0.1) times the reference's main-branch length ``L`` (default). The shape terms
             are lengths (``||q||^2`` = length, in the data's units) while ``s`` is a fraction, so a fixed ``lp``
-            means nothing for plants in mm (lp = 1 let similar maize leaves two nodes apart swap: 83 % identity
-            precision between consecutive synthetic frames, 94 % with the relative weight; the scale trades
-            identities against cycle consistency, see ``RELATIVE_LP_SCALE``). ``False`` uses ``lambdas[2]`` as it
+            means nothing for plants in mm (absolute lp = 1 let similar maize leaves two nodes apart swap: 83 %
+            identity precision between consecutive synthetic frames, 97 % with ``lp = 9`` relative; the scale
+            trades identities against cycle consistency, see ``RELATIVE_LP_SCALE``). ``False`` uses ``lambdas[2]`` as it
             is. The effective weights are in the results' ``aligned.lambdas``.
 
     Returns:
