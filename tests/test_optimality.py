@@ -74,7 +74,8 @@ def np_warp_energies(q1: np.ndarray, q2: np.ndarray, warps: np.ndarray) -> np.nd
     The warped SRVF is that of the moving polyline evaluated at ``gamma`` (linear in the parameter).
     """
     Mq = q1.shape[0]
-    beta2 = np.concatenate([np.zeros((1, q2.shape[1])), (q2 * np.linalg.norm(q2, axis=1, keepdims=True)).cumsum(0) / Mq])
+    steps = q2 * np.linalg.norm(q2, axis=1, keepdims=True) / Mq
+    beta2 = np.concatenate([np.zeros((1, q2.shape[1])), steps.cumsum(0)])
     x = warps * Mq
     lo = np.minimum(np.floor(x).astype(int), Mq - 1)
     fr = (x - lo)[..., None]
@@ -181,7 +182,8 @@ def test_the_lattice_is_what_brute_force_enumerates() -> None:
     rng = np.random.default_rng(0)
     W = _lattice_warps()
     assert len(W) == 1343 and torch.equal(W[:, 0], torch.zeros(len(W))) and torch.equal(W[:, -1], torch.ones(len(W)))
-    q1, q2 = srvf(torch.as_tensor(rng.normal(size=(8, M + 1, 3)))), srvf(torch.as_tensor(rng.normal(size=(8, M + 1, 3))))
+    q1 = srvf(torch.as_tensor(rng.normal(size=(8, M + 1, 3))))
+    q2 = srvf(torch.as_tensor(rng.normal(size=(8, M + 1, 3))))
     res = dp_warp(q1, q2, neighbourhood=N_STEPS, band=None)
     for b in range(8):
         brute = np_warp_energies(q1[b].numpy(), q2[b].numpy(), W.numpy())
