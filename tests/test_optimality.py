@@ -15,7 +15,7 @@ from functools import cache
 import numpy as np
 import pytest
 import torch
-from test_warping import lattice_paths, path_to_warp
+from test_warping import path_to_warp
 
 import torch4dtree.trees.registration as reg
 from torch4dtree.curves import srvf, warp_energy
@@ -86,7 +86,15 @@ def np_warp_energies(q1: np.ndarray, q2: np.ndarray, warps: np.ndarray) -> np.nd
 @cache
 def _lattice_warps() -> torch.Tensor:
     """Every warp of the DP lattice ``(P, M+1)`` (monotone paths with coprime steps up to N_STEPS)."""
-    return torch.stack([path_to_warp(p, M) for p in lattice_paths(M, N_STEPS)])
+    steps = [(a, b) for a in range(1, N_STEPS + 1) for b in range(1, N_STEPS + 1) if math.gcd(a, b) == 1]
+
+    @cache
+    def tails(i: int, j: int) -> tuple[tuple[tuple[int, int], ...], ...]:  # paths from (i, j) to (M, M)
+        if (i, j) == (M, M):
+            return (((M, M),),)
+        return tuple(((i, j), *p) for a, b in steps if i + a <= M and j + b <= M for p in tails(i + a, j + b))
+
+    return torch.stack([path_to_warp(list(p), M) for p in tails(0, 0)])
 
 
 class BruteForce:
@@ -181,7 +189,8 @@ def test_the_lattice_is_what_brute_force_enumerates() -> None:
 
     rng = np.random.default_rng(0)
     W = _lattice_warps()
-    assert len(W) == 1343 and torch.equal(W[:, 0], torch.zeros(len(W))) and torch.equal(W[:, -1], torch.ones(len(W)))
+    assert len(W) == 1343 and len({tuple(w.tolist()) for w in W}) == len(W)  # as test_warping.lattice_paths
+    assert torch.equal(W[:, 0], torch.zeros(len(W))) and torch.equal(W[:, -1], torch.ones(len(W)))
     q1 = srvf(torch.as_tensor(rng.normal(size=(8, M + 1, 3))))
     q2 = srvf(torch.as_tensor(rng.normal(size=(8, M + 1, 3))))
     res = dp_warp(q1, q2, neighbourhood=N_STEPS, band=None)
