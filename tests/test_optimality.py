@@ -26,19 +26,26 @@ M = 8  # segments per branch: T = 9 points, small enough to list every lattice p
 N_STEPS = 4  # register_trees' default neighbourhood
 
 
-def tiny_tree(rng: np.random.Generator, k_max: int = 3, grand_max: int = 2) -> Trees:
+def tiny_tree(rng: np.random.Generator, k_max: int = 3, grand_max: int = 2, straight: bool = False) -> Trees:
     """A main branch with 1..k_max children, each with 0..grand_max children; rough random branches.
 
     Built directly in the ``Trees`` convention (depth-first, children by increasing ``s``). Branch
     shapes are random walks (kinked, so lattice optima are unique); lengths vary so that matching to
-    null is sometimes optimal.
+    null is sometimes optimal. ``straight``: side branches are straight, all about along +x, with lengths
+    from 0.02 to 2: pairs whose cost sits right at the pruning lower bound
+    ``ls lm (sqrt(len_c) - sqrt(len_e))^2`` and may still be the best match.
     """
     pts: list[np.ndarray] = []
     parent: list[int] = []
     s: list[float] = []
 
     def branch(scale: float) -> np.ndarray:
-        steps = rng.normal(size=(M, 3)) * scale
+        if straight and pts:
+            d = np.array([1.0, *rng.normal(scale=0.3, size=2)])  # all about parallel: never exact ties
+            d *= np.exp(rng.uniform(np.log(0.02), np.log(2.0))) / (M * np.linalg.norm(d))
+            steps = np.tile(d, (M, 1)) * (1 + 0.3 * rng.uniform(size=(M, 1)))  # uneven speed: warps matter
+        else:
+            steps = rng.normal(size=(M, 3)) * scale
         return np.concatenate([np.zeros((1, 3)), steps.cumsum(0)])
 
     def add(p: int, s_here: float, depth: int, scale: float) -> None:
@@ -219,6 +226,20 @@ def test_tree_registration_equals_brute_force(seed: int, monkeypatch: pytest.Mon
         assert metric_at(A, B, r.matches, r.gamma, lam) == pytest.approx(best, rel=1e-9, abs=1e-12)
         fallbacks += r.used_index_order
     assert fallbacks < 6  # the index-order fallback is not what is being measured
+
+
+@pytest.mark.parametrize("seed", range(2))
+def test_pairs_at_the_pruning_bound_equal_brute_force(seed: int, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Straight, parallel side branches of very different lengths: matching them costs about the pruning
+    lower bound and can still beat leaving both unmatched. Pruning must not drop such pairs."""
+    monkeypatch.setattr(reg, "LANDMARK_MIN_SHARE", math.inf)
+    rng = np.random.default_rng(200 + seed)
+    for _ in range(8):
+        A, B = tiny_tree(rng, straight=True), tiny_tree(rng, straight=True)
+        lam = random_lambdas(rng)
+        r = register_trees(A, B, lambdas=lam)
+        best = BruteForce(A, B, lam).cost(0, 0)
+        assert float(r.distance) ** 2 == pytest.approx(best, rel=1e-9, abs=1e-12), (lam, r.matches)
 
 
 def test_children_aware_refit_is_never_worse_than_brute_force() -> None:
