@@ -5,12 +5,12 @@
 
 mutmut 2 generates the mutants (operators, numbers, comparisons, keywords, ...); this driver applies one at a
 time to a COPY of the sources (``--work``, default /tmp/torch4dtree-mutation: this checkout is never touched),
-runs the fast tests paired with its module in the project's venv (``--python``) and records killed / survived /
+runs the fast tests paired with its module in the project's venv (``--python``, niced) and records killed / survived /
 timeout with the mutant's diff in a JSON-lines file. With ``--per-module N`` it runs a seeded uniform sample of
 N mutants per module (all of them with 0): a full run is ~3,400 mutants at ~10 s each, too much for a shared
 2-core machine. String-literal mutants (``"XX...XX"``: error messages) are left out: they cannot change results.
 The numba kernels (dp_numba.py, refinement.py) run with NUMBA_DISABLE_JIT=1 on tiny inputs, as recompiling them
-per mutant takes minutes. One process, one thread, niced.
+per mutant takes minutes. One process, one thread.
 """
 
 from __future__ import annotations
@@ -79,6 +79,7 @@ def main() -> None:
     p.add_argument("--modules", nargs="*", default=list(TESTS))
     p.add_argument("--per-module", type=int, default=40, help="sampled mutants per module (0 = all)")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--nice", type=int, default=5)
     p.add_argument("--work", default="/tmp/torch4dtree-mutation")
     p.add_argument("--python", default=str(REPO / ".venv/bin/python") if (REPO / ".venv").exists()
                    else "/work/main/.venv/bin/python")
@@ -88,14 +89,15 @@ def main() -> None:
     work.mkdir(parents=True, exist_ok=True)
     for name in ("torch4dtree", "tests"):
         shutil.rmtree(work / name, ignore_errors=True)
-        shutil.copytree(REPO / name, work / name, ignore=shutil.ignore_patterns("__pycache__"))
+        # with __pycache__ and mtimes (copy2): numba's on-disk cache stays valid, no recompilation
+        shutil.copytree(REPO / name, work / name)
     out = Path(a.out or work / "results.jsonl")
     env = {**os.environ, "PYTHONPATH": str(work), "OMP_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1"}
     rng = random.Random(a.seed)
     for mod in a.modules:
         target = work / "torch4dtree" / mod
         original = target.read_text()
-        cmd = ["nice", "-n", "10", a.python, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider", *TESTS[mod]]
+        cmd = ["nice", "-n", str(a.nice), a.python, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider", *TESTS[mod]]
         menv = {**env, **({"NUMBA_DISABLE_JIT": "1"} if mod in NO_JIT else {})}
         t0 = time.perf_counter()
         base = subprocess.run(cmd, cwd=work, env=menv, capture_output=True, text=True)
