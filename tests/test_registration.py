@@ -447,3 +447,15 @@ def test_lambdas_checked_in_the_specs_order():
     for bad in ((1.0, 0.0, 1.0), (0.0, 1.0, 1.0), (1.0, 1.0, -1.0), (1.0, 1.0), (1.0, float("nan"), 1.0)):
         with pytest.raises(ValueError, match="lm > 0, ls > 0, lp >= 0"):
             register_trees(A, A, lambdas=bad)
+
+
+def test_benchmarks_find_the_real_data(monkeypatch):
+    """The benchmarks' default data folder is ../shared/data/pheno4d beside the repository (it pointed inside
+    the repository after the package was restructured, and the curve benchmark silently dropped Pheno4D)."""
+    from conftest import PHENO4D, pheno4d
+
+    from torch4dtree.bench.trees import default_data_root
+
+    pheno4d("swc")
+    monkeypatch.delenv("TORCH4DTREE_PHENO4D", raising=False)
+    assert default_data_root().resolve() == PHENO4D.resolve()
