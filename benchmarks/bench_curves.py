@@ -47,8 +47,8 @@ def main() -> None:
               f"{al[f'speedup_batched_{nt}_threads_by_means']:.0f}x (fdasrsf runs on 1 thread)")
         print("\nenergies: mean(ours) / mean(theirs) over the same pairs (share of pairs where ours is not "
               "worse)")
-        print(f"{'pairs':8s} {'grid vs fda':>16s} {'fine vs fda':>16s} {'grid vs fda it.':>16s} {'fine vs fda it.':>16s}"
-              f" {'fine/grid: ours, fda, fda it.':>30s}")
+        print(f"{'pairs':8s} {'grid vs fda':>16s} {'fine vs fda':>16s} {'grid vs fda it.':>16s} "
+              f"{'fine vs fda it.':>16s} {'fine/grid: ours, fda, fda it.':>30s}")
         for kind, k in list(r["kinds"].items()) + [("all", al)]:
             cols = ("grid_vs_fdasrsf", "fine_vs_fdasrsf", "grid_vs_fdasrsf_iterated", "fine_vs_fdasrsf_iterated")
             row = " ".join(f"{k[x]['ratio_of_means']:8.3f} ({100 * k[x]['not_worse']:3.0f}%)" for x in cols)
