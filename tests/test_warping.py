@@ -288,14 +288,16 @@ def test_dimension_10_and_srvf_input_and_resampling() -> None:
     assert rr.gamma.shape == (3, 40) and rr.registered.shape == (3, 40, 10)
 
 
-def test_moving_curve_with_another_number_of_points() -> None:
+@pytest.mark.parametrize("backend", ["numba", "torch"])
+def test_moving_curve_with_another_number_of_points(backend: str) -> None:
     """The resampling path does the right thing, not only the right shapes: a warped copy given at 57
-    points is registered onto the 40-point original, and the warp found is the true inverse warp."""
+    points is registered onto the 40-point original, and the warp found is the true inverse warp. Both
+    paths: the numba one resamples inside its kernel, the torch one (any device, or with gradients) in torch."""
     B = 6
     x40 = smooth_curves(B, 40, seed=30)
     gam = W.random_warp(B, 57, generator=torch.Generator().manual_seed(31), strength=0.4)
     y57 = warp_curve(smooth_curves(B, 57, seed=30), gam)  # the same curves, sampled at 57 points
-    r = W.register_curves(y57, x40)
+    r = W.register_curves(y57, x40, backend=backend, coarse=8 if backend == "torch" else 16)
     assert r.gamma.shape == (B, 40) and r.registered.shape == (B, 40, 3)
     grid40 = torch.linspace(0, 1, 40, dtype=torch.float64).expand(B, 40)
     truth = interpolate_curve(W.invert_warp(gam).unsqueeze(-1), grid40)[..., 0]
