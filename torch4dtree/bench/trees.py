@@ -129,25 +129,36 @@ def benchmark_trees(root: str | Path | None = None, T: int = 64, rotation: str =
 
     Returns ``{"pairs", "median_s", "max_s", "speedup_vs_paper", ... , "per_kind": {kind: {...}},
     "rows": [(kind, name, seconds, distance_before, distance_after, n_branches_a, n_branches_b)]}``.
-    The time of a pair is the best of ``repeats`` runs (the machine may be shared). A warm-up
-    registration compiles the numba kernels first.
+    The time of a pair is the best of ``repeats`` runs (the machine may be shared), as wall-clock seconds
+    and as CPU seconds of this process (``cpu_*``: on a machine shared with other jobs, the CPU time of a
+    single-threaded run is what it would take alone; run with ``torch.set_num_threads(1)`` so it is
+    single-threaded). A warm-up registration compiles the numba kernels first.
     """
     pairs = consecutive_pairs(root, T, kinds, max_pairs, source)
     if not pairs:
         raise FileNotFoundError(f"no Pheno4D pairs found under {root or default_data_root()}")
     register_trees(pairs[0][3], pairs[0][2], rotation=rotation, **kwargs)  # warm-up (JIT)
-    rows = []
+    rows, cpu = [], []
     for kind, name, a, b in pairs:
-        best = float("inf")
+        best, best_cpu = float("inf"), float("inf")
         for _ in range(max(repeats, 1)):
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             res = register_trees(b, a, rotation=rotation, **kwargs)
-            best = min(best, time.perf_counter() - t0)
+            best, best_cpu = min(best, time.perf_counter() - t0), min(best_cpu, time.process_time() - c0)
         rows.append((kind, name, best, float(res.distance_before), float(res.distance),
                      int(a.num_branches[0]), int(b.num_branches[0])))
-    out = _summary([r[2] for r in rows], [r[3] for r in rows], [r[4] for r in rows])
-    out["per_kind"] = {k: _summary([r[2] for r in rows if r[0] == k], [r[3] for r in rows if r[0] == k],
-                                   [r[4] for r in rows if r[0] == k]) for k in kinds if any(r[0] == k for r in rows)}
+        cpu.append(best_cpu)
+
+    def summ(sel: list[int]) -> dict:
+        out = _summary([rows[i][2] for i in sel], [rows[i][3] for i in sel], [rows[i][4] for i in sel])
+        c = [cpu[i] for i in sel]
+        out.update({"cpu_mean_s": statistics.fmean(c), "cpu_median_s": statistics.median(c), "cpu_max_s": max(c),
+                    "speedup_vs_paper_cpu": PAPER_SECONDS / statistics.fmean(c)})
+        return out
+
+    out = summ(list(range(len(rows))))
+    out["per_kind"] = {k: summ([i for i, r in enumerate(rows) if r[0] == k]) for k in kinds
+                       if any(r[0] == k for r in rows)}
     out["rows"] = rows
     out["T"], out["rotation"], out["paper_seconds"] = T, rotation, PAPER_SECONDS
     return out
