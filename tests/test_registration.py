@@ -467,7 +467,8 @@ def test_rotation_update_recovers_the_spin_about_a_straight_stem(seed):
     (the weighted Kabsch step over all matched branches; the starts are only 30 degrees apart)."""
     A = random_tree(np.random.default_rng(seed), T=32)
     pts = A.points.clone()
-    pts[0] = torch.linspace(0, 1, 32, dtype=torch.float64)[:, None] * torch.tensor([0.0, 0.0, 30.0], dtype=torch.float64)
+    stem = torch.tensor([0.0, 0.0, 30.0], dtype=torch.float64)
+    pts[0] = torch.linspace(0, 1, 32, dtype=torch.float64)[:, None] * stem
     A = A.with_points(pts)
     B, truth = transformed_copy_truth(A, torch.Generator().manual_seed(seed), "so3", strength=0.5)
     r = register_trees(B, A, rotation="so3")
