@@ -41,8 +41,12 @@ def main() -> None:
         print(f"{kind:8s} {ms2(k['ours_s_per_pair']):>15s} {1e3 * k['batched_1_thread_s_per_pair']:16.3f} "
               f"{1e3 * k[f'batched_{nt}_threads_s_per_pair']:16.3f} {ms2(f):>15s} {ms2(fi):>15s}")
     al = r["all"]
+    print("CPU time of one pair per call (ms, mean / median; single-threaded, so what a call costs alone):")
+    for kind, k in list(r["kinds"].items()) + [("all", al)]:
+        print(f"{kind:8s} ours {ms2(k['ours_cpu_s_per_pair'])}   fdasrsf {ms2(k.get('fdasrsf_cpu_s_per_pair'))}")
     if "speedup_one_pair_by_means" in al:
-        print(f"speed-up vs fdasrsf, mean / mean: one pair {al['speedup_one_pair_by_means']:.0f}x, batched on 1 thread "
+        print(f"speed-up vs fdasrsf, mean / mean: one pair {al['speedup_one_pair_by_means']:.0f}x (CPU time: "
+              f"{al['speedup_one_pair_cpu_by_means']:.0f}x), batched on 1 thread "
               f"{al['speedup_batched_1_thread_by_means']:.0f}x, batched on {nt} threads "
               f"{al[f'speedup_batched_{nt}_threads_by_means']:.0f}x (fdasrsf runs on 1 thread)")
         print("\nenergies: mean(ours) / mean(theirs) over the same pairs (share of pairs where ours is not "

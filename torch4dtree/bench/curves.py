@@ -251,7 +251,7 @@ def benchmark_curves(pairs: int = 1000, T: int = 100, fdasrsf_pairs: int = 40, s
 
     per_kind: dict[str, Any] = {}
     pooled: dict[str, list] = {k: [] for k in ("t_ours", "t_fda", "t_fda_it", "b1", "bn", "eo", "ef", "ei", "fo",
-                                               "ff", "fi")}
+                                               "ff", "fi", "c_ours", "c_fda")}
     for kind in kinds:
         if kind == "pheno4d" and not Path(pheno4d).is_dir():
             continue
@@ -270,16 +270,18 @@ def benchmark_curves(pairs: int = 1000, T: int = 100, fdasrsf_pairs: int = 40, s
                              "ours_mean_distance": float(res.distance.mean())}
         pooled["b1"].append(statistics.median(b1))
         pooled["bn"].append(statistics.median(bn))
-        t_o, t_f, t_i, gams, Rs, gi, Ri = [], [], [], [], [], [], []
+        t_o, t_f, t_i, gams, Rs, gi, Ri, c_o, c_f = [], [], [], [], [], [], [], [], []
         for i in range(max(n, single_reps if cf is None else 0)):  # interleaved, pair by pair
             j = i % pairs
-            t = time.perf_counter()
+            t, c = time.perf_counter(), time.process_time()
             register_curves(mov[j], ref[j], **kw)
             t_o.append(time.perf_counter() - t)
+            c_o.append(time.process_time() - c)
             if cf is not None and i < n:
-                t = time.perf_counter()
+                t, c = time.perf_counter(), time.process_time()
                 gm, R = _fdasrsf_register(cf, mov[j], ref[j], rotation=kw["rotation"] != "none")
                 t_f.append(time.perf_counter() - t)
+                c_f.append(time.process_time() - c)
                 t = time.perf_counter()
                 gm2, R2 = _fdasrsf_iterated(cf, mov[j], ref[j], fdasrsf_rounds)
                 t_i.append(time.perf_counter() - t)
@@ -288,14 +290,18 @@ def benchmark_curves(pairs: int = 1000, T: int = 100, fdasrsf_pairs: int = 40, s
                 gi.append(gm2)
                 Ri.append(R2)
         k["ours_s_per_pair"] = _stats(t_o)
+        k["ours_cpu_s_per_pair"] = _stats(c_o)
         pooled["t_ours"] += t_o
+        pooled["c_ours"] += c_o
         if cf is not None and n > 0:
             G, Rt, GI, RI = torch.stack(gams), torch.stack(Rs), torch.stack(gi), torch.stack(Ri)
             m, r = mov[:n], ref[:n]
             e_o, f_o = res.energy[:n], fine_energy(m, r, res.gamma[:n], res.rotation[:n])
             e_f, f_f = _our_energy(m, r, G, Rt), fine_energy(m, r, G, Rt)
             e_i, f_i = _our_energy(m, r, GI, RI), fine_energy(m, r, GI, RI)
+            pooled["c_fda"] += c_f
             k.update({"fdasrsf_s_per_pair": _stats(t_f), "fdasrsf_iterated_s_per_pair": _stats(t_i),
+                      "fdasrsf_cpu_s_per_pair": _stats(c_f),
                       "grid_vs_fdasrsf": _compare(e_o, e_f), "fine_vs_fdasrsf": _compare(f_o, f_f),
                       "grid_vs_fdasrsf_iterated": _compare(e_o, e_i), "fine_vs_fdasrsf_iterated": _compare(f_o, f_i),
                       "fine_over_grid": {"ours": float(f_o.mean() / e_o.mean()),
@@ -309,13 +315,16 @@ def benchmark_curves(pairs: int = 1000, T: int = 100, fdasrsf_pairs: int = 40, s
         per_kind[kind] = k
     out["kinds"] = per_kind
     allk: dict[str, Any] = {"ours_s_per_pair": _stats(pooled["t_ours"]),
+                            "ours_cpu_s_per_pair": _stats(pooled["c_ours"]),
                             "batched_1_thread_s_per_pair": statistics.median(pooled["b1"]),
                             f"batched_{threads}_threads_s_per_pair": statistics.median(pooled["bn"])}
     if pooled["t_fda"]:
         eo, ef, ei, fo, ff, fi = (torch.cat(pooled[x]) for x in ("eo", "ef", "ei", "fo", "ff", "fi"))
         tf, ti, to = _stats(pooled["t_fda"]), _stats(pooled["t_fda_it"]), allk["ours_s_per_pair"]
-        allk.update({"fdasrsf_s_per_pair": tf, "fdasrsf_iterated_s_per_pair": ti,
+        cf_, co = _stats(pooled["c_fda"]), allk["ours_cpu_s_per_pair"]
+        allk.update({"fdasrsf_s_per_pair": tf, "fdasrsf_iterated_s_per_pair": ti, "fdasrsf_cpu_s_per_pair": cf_,
                      "speedup_one_pair_by_means": tf["mean"] / to["mean"],
+                     "speedup_one_pair_cpu_by_means": cf_["mean"] / co["mean"],
                      "speedup_batched_1_thread_by_means": tf["mean"] / allk["batched_1_thread_s_per_pair"],
                      f"speedup_batched_{threads}_threads_by_means":
                          tf["mean"] / allk[f"batched_{threads}_threads_s_per_pair"],
