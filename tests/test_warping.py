@@ -81,8 +81,8 @@ def test_neighbourhood_steps() -> None:
 
 
 # (T, neighbourhood, band, coarse): several grid sizes, lattices and bands (band None = the full lattice)
-BACKEND_CASES = [(5, 6, None, None), (9, 6, None, None), (17, 4, 2, 8), (33, 3, None, None), (33, 5, 4, 16), (64, 1, None, None),
-                 (48, 3, 3, 12)]
+BACKEND_CASES = [(5, 6, None, None), (9, 6, None, None), (17, 4, 2, 8), (33, 3, None, None), (33, 5, 4, 16),
+                 (64, 1, None, None), (48, 3, 3, 12)]
 
 
 @pytest.mark.parametrize(("T", "n", "band", "coarse"), BACKEND_CASES)
