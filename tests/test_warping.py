@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from torch4dtree import curves as W
-from torch4dtree.curves import curve_length, dp_numba, srvf, warp_curve, warp_srvf
+from torch4dtree.curves import curve_length, dp_numba, interpolate_curve, srvf, warp_curve, warp_srvf
 from torch4dtree.curves.rotation import axis_rotation, optimal_rotation, random_rotation
 
 
@@ -80,22 +80,39 @@ def test_neighbourhood_steps() -> None:
     assert all(math.gcd(a, b) == 1 and 1 <= a <= 6 and 1 <= b <= 6 for a, b in steps)
 
 
-def test_torch_and_numba_backends_agree() -> None:
-    beta1, beta2 = smooth_curves(3, 40, seed=3), smooth_curves(3, 40, seed=4)
-    q1, q2 = srvf(beta1), srvf(beta2)
-    for kw in ({"band": None}, {"band": 4, "coarse": 16}, {"band": 4, "coarse": 16, "refine": 2}):
-        a = W.dp_warp(q1, q2, backend="numba", **kw)
-        b = W.dp_warp(q1, q2, backend="torch", **kw)
-        assert torch.allclose(a.energy, b.energy, rtol=1e-6, atol=1e-9)
+# (T, neighbourhood, band, coarse): several grid sizes, lattices and bands (band None = the full lattice)
+BACKEND_CASES = [(5, 6, None, None), (9, 6, None, None), (17, 4, 2, 8), (33, 3, None, None), (33, 5, 4, 16),
+                 (64, 1, None, None), (48, 3, 3, 12)]
+
+
+@pytest.mark.parametrize(("T", "n", "band", "coarse"), BACKEND_CASES)
+def test_torch_and_numba_dp_agree_on_rough_pairs(T: int, n: int, band: int | None, coarse: int | None) -> None:
+    """The numba kernels and the torch twin: 100 rough (random-walk) pairs per case, the same warps and
+    energies. Lattice warps are ratios of small integers, so two different choices differ by >= 1/(n M);
+    agreement to 1e-15 is agreement of every discrete choice (the identity warp comes from np.linspace
+    in one backend and torch.linspace in the other, which differ in the last bit)."""
+    q1, q2 = srvf(rough_curves(100, T, seed=T + n)), srvf(rough_curves(100, T, seed=1000 + T + n))
+    kw = {"neighbourhood": n, "band": band, "coarse": coarse, "band_neighbourhood": n}
+    a = W.dp_warp(q1, q2, backend="numba", **kw)
+    b = W.dp_warp(q1, q2, backend="torch", **kw)
+    assert (a.gamma - b.gamma).abs().max() <= 1e-15
+    assert torch.allclose(a.energy, b.energy, rtol=1e-13, atol=0)
+    if n > 1:  # a real search: most pairs leave the identity
+        assert (a.gamma != W.identity_warp(100, T)).any(1).float().mean() > 0.9
+
+
+def test_torch_and_numba_registration_agree() -> None:
+    """Whole registrations (rotation starts, coarse-to-fine bands, Gauss-Newton refinement) agree too."""
+    x = rough_curves(8, 24, seed=3)
+    y = warp_curve(x + 0.3 * rough_curves(8, 24, seed=4),
+                   W.random_warp(8, 24, generator=torch.Generator().manual_seed(0), strength=0.5))
+    y = y @ random_rotation(8, generator=torch.Generator().manual_seed(1)).transpose(-1, -2)
+    for rotation in ("none", "vertical", "so3"):
+        a = W.register_curves(y, x, rotation=rotation, coarse=8, refine=2, backend="numba")
+        b = W.register_curves(y, x, rotation=rotation, coarse=8, refine=2, backend="torch")
+        assert torch.allclose(a.energy, b.energy, rtol=1e-9, atol=1e-12)
         assert torch.allclose(a.gamma, b.gamma, atol=1e-9)
-    x = smooth_curves(2, 40, seed=5)
-    y = warp_curve(x, W.random_warp(2, 40, generator=torch.Generator().manual_seed(0), strength=0.5))
-    y = y @ random_rotation(2, generator=torch.Generator().manual_seed(1)).transpose(-1, -2)
-    a = W.register_curves(y, x, rotation="so3", coarse=16, backend="numba")
-    b = W.register_curves(y, x, rotation="so3", coarse=16, backend="torch")
-    assert torch.allclose(a.energy, b.energy, rtol=1e-6, atol=1e-9)
-    assert torch.allclose(a.gamma, b.gamma, atol=1e-9)
-    assert torch.allclose(a.rotation, b.rotation, atol=1e-7)
+        assert torch.allclose(a.rotation, b.rotation, atol=1e-7)
 
 
 # ------------------------------------------------------------------ registration properties
@@ -147,6 +164,60 @@ def test_symmetry() -> None:
     d_xz, d_zx = W.elastic_distance(x, z, rotation="so3"), W.elastic_distance(z, x, rotation="so3")
     assert (d_xz > 0.1).all()
     assert torch.allclose(d_xz, d_zx, rtol=0.05), (d_xz, d_zx)
+
+
+def _assert_proper(O: torch.Tensor) -> None:
+    """Every ``O (..., d, d)`` is a proper rotation: ``O O^T = I`` and ``det O = +1``."""
+    d = O.shape[-1]
+    eye = torch.eye(d, dtype=O.dtype).expand_as(O)
+    assert torch.allclose(O @ O.transpose(-1, -2), eye, atol=1e-10)
+    assert torch.allclose(torch.linalg.det(O), torch.ones(O.shape[:-2], dtype=O.dtype), atol=1e-10)
+
+
+@pytest.mark.parametrize("backend", ["numba", "torch"])
+@pytest.mark.parametrize("rotation", ["none", "vertical", "so3"])
+def test_every_rotation_is_proper(backend: str, rotation: str) -> None:
+    """det = +1 and O O^T = I for every output in d = 3, every mode, both backends, including mirror
+    images (where the best orthogonal matrix is a reflection, which must be excluded)."""
+    B = 12 if backend == "numba" else 4
+    x = rough_curves(B, 16, seed=50)
+    mirror = x * torch.tensor([1.0, 1.0, -1.0], dtype=x.dtype)
+    y = torch.cat([rough_curves(B // 2, 16, seed=51), mirror[: B // 2]])
+    r = W.register_curves(y, x, rotation=rotation, coarse=8, backend=backend)
+    _assert_proper(r.rotation)
+    if rotation == "vertical":  # about the vertical axis: it stays fixed
+        assert torch.allclose(r.rotation[:, :, 2], torch.tensor([0.0, 0.0, 1.0], dtype=x.dtype).expand(B, 3))
+    q1, q2 = srvf(x), srvf(y)
+    _assert_proper(optimal_rotation(q1, q2, rotation))
+    for d in (2, 4):  # the SVD path (numba kernel and torch) outside d = 3
+        xd = rough_curves(2, 16, d=d, seed=52)
+        md = xd.clone()
+        md[..., -1] = -md[..., -1]
+        _assert_proper(W.register_curves(md, xd, rotation="so3", coarse=8, backend=backend).rotation)
+        _assert_proper(optimal_rotation(srvf(xd), srvf(md), "so3"))
+    _assert_proper(random_rotation(50, 3, generator=torch.Generator().manual_seed(3)))
+
+
+@pytest.mark.parametrize("backend", ["numba", "torch"])
+@pytest.mark.parametrize("rotation", ["vertical", "so3"])
+def test_distance_invariant_to_random_rotations_of_the_moving_curve(rotation: str, backend: str) -> None:
+    """Random angles (not one fixed angle): rotating the moving curve leaves the distance unchanged. Both
+    backends: each has its own closed-form rotations."""
+    B, T = (6, 50) if backend == "numba" else (2, 20)  # the torch twin is slow on the CPU
+    kw = {"rotation": rotation, "backend": backend, "coarse": 16 if backend == "numba" else 8}
+    x = smooth_curves(B, T, seed=40)
+    y = 0.5 * smooth_curves(B, T, seed=41) + x
+    d0 = W.register_curves(y, x, **kw).distance
+    g = torch.Generator().manual_seed(0)
+    up = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)
+    for _ in range(3 if backend == "numba" else 2):
+        if rotation == "vertical":
+            R = axis_rotation(up, torch.rand(B, generator=g, dtype=torch.float64) * 2 * math.pi)
+        else:
+            R = random_rotation(B, generator=g)
+        d = W.register_curves(y @ R.transpose(-1, -2), x, **kw).distance
+        assert torch.allclose(d, d0, rtol=1e-9), (d, d0)
+    assert (d0 > 0.1).all()  # a real residual, so the invariance is not that of zeros
 
 
 @pytest.mark.parametrize("backend", ["numba", "torch"])
@@ -218,6 +289,23 @@ def test_dimension_10_and_srvf_input_and_resampling() -> None:
     # moving given with another number of points: resampled onto the reference grid
     rr = W.register_curves(warp_curve(y, W.identity_warp(3, 57)), x, rotation="none")
     assert rr.gamma.shape == (3, 40) and rr.registered.shape == (3, 40, 10)
+
+
+@pytest.mark.parametrize("backend", ["numba", "torch"])
+def test_moving_curve_with_another_number_of_points(backend: str) -> None:
+    """The resampling path does the right thing, not only the right shapes: a warped copy given at 57
+    points is registered onto the 40-point original, and the warp found is the true inverse warp. Both
+    paths: the numba one resamples inside its kernel, the torch one (any device, or with gradients) in torch."""
+    B = 6
+    x40 = smooth_curves(B, 40, seed=30)
+    gam = W.random_warp(B, 57, generator=torch.Generator().manual_seed(31), strength=0.4)
+    y57 = warp_curve(smooth_curves(B, 57, seed=30), gam)  # the same curves, sampled at 57 points
+    r = W.register_curves(y57, x40, backend=backend, coarse=8 if backend == "torch" else 16)
+    assert r.gamma.shape == (B, 40) and r.registered.shape == (B, 40, 3)
+    grid40 = torch.linspace(0, 1, 40, dtype=torch.float64).expand(B, 40)
+    truth = interpolate_curve(W.invert_warp(gam).unsqueeze(-1), grid40)[..., 0]
+    assert (r.gamma - truth).abs().mean(1).max() < 3e-3  # reading only the first 40 points: ~0.13
+    assert (r.distance < 0.06).all()  # reading only the first 40 points: 0.18-0.58
 
 
 def test_optimal_rotation_is_optimal() -> None:

@@ -11,7 +11,6 @@ from __future__ import annotations
 import math
 import statistics
 import time
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -123,55 +122,113 @@ def _fdasrsf() -> Any | None:
 
 
 def _fdasrsf_register(cf: Any, mov: Tensor, ref: Tensor, rotation: bool) -> tuple[Tensor, Tensor]:
-    """fdasrsf's open-curve registration of one pair; returns its warp ``(T,)`` and rotation ``(3, 3)``."""
+    """fdasrsf's open-curve registration of one pair (its default: one Procrustes rotation, then one DP);
+    returns its warp ``(T,)`` and rotation ``(3, 3)``."""
     b1 = (ref - ref.mean(0)).T.contiguous().numpy().copy()
     b2 = (mov - mov.mean(0)).T.contiguous().numpy().copy()
     _, _, R, gam = cf.find_rotation_and_seed_coord(b1, b2, closed=0, rotation=rotation, method="DP")
     return torch.as_tensor(np.asarray(gam), dtype=torch.float64), torch.as_tensor(np.asarray(R), dtype=torch.float64)
 
 
+def _fdasrsf_iterated(cf: Any, mov: Tensor, ref: Tensor, rounds: int = 5) -> tuple[Tensor, Tensor]:
+    """fdasrsf alternated: its registration, then ``rounds`` x (optimal rotation of the warped SRVF with
+    ``find_best_rotation``, its DP again on the rotated curve). Returns the best (warp, rotation) seen,
+    by our discrete energy, so it is never worse than fdasrsf's default."""
+    from fdasrsf.utility_functions import invertGamma
+
+    gam, R = _fdasrsf_register(cf, mov, ref, rotation=True)
+    b1 = (ref - ref.mean(0)).T.contiguous().numpy().copy()
+    b2 = (mov - mov.mean(0)).T.contiguous().numpy().copy()
+    q1 = cf.curve_to_q(b1)[0]
+    best = (float(_our_energy(mov[None], ref[None], gam[None], R[None])[0]), gam, R)
+    Rn = R.numpy()
+    for _ in range(rounds):
+        b2w = cf.group_action_by_gamma_coord(Rn @ b2, gam.numpy())
+        _, Rd = cf.find_best_rotation(q1, cf.curve_to_q(b2w)[0])
+        Rn = Rd @ Rn
+        g = invertGamma(cf.optimum_reparam_curve(cf.curve_to_q(Rn @ b2)[0], q1, 0.0, "DP"))
+        gam, R = torch.as_tensor(np.asarray(g), dtype=torch.float64), torch.as_tensor(Rn, dtype=torch.float64)
+        e = float(_our_energy(mov[None], ref[None], gam[None], R[None])[0])
+        if e < best[0]:
+            best = (e, gam, R)
+    return best[1], best[2]
+
+
 def _our_energy(mov: Tensor, ref: Tensor, gamma: Tensor, R: Tensor) -> Tensor:
-    """Our discrete energy of moving curves under warps ``gamma`` then rotations ``R``."""
+    """Our discrete energy of moving curves under warps ``gamma`` then rotations ``R``: on the curves' own
+    ``T``-point grid (the grid our DP optimises on)."""
     return srvf_sq_distance(srvf(ref), srvf(warp_curve(mov, gamma) @ R.transpose(-1, -2)))
 
 
-# runs of the batched call per kind (median reported)
+# points of the independent fine discretisation used to score warps off the optimiser's grid
+FINE_T = 2001
+
+
+def fine_energy(mov: Tensor, ref: Tensor, gamma: Tensor, R: Tensor, fine: int = FINE_T) -> Tensor:
+    """The same energy on an independent fine discretisation: both curves are interpolated by cubic splines
+    in their parameter (a smooth curve through the samples, not the polyline whose knots a lattice warp can
+    sit on to cut corners), the warp linearly, and the SRVFs compared on ``fine`` points.
+    ``(B, T, d), (B, T, d), (B, T), (B, d, d) -> (B,)``."""
+    from scipy.interpolate import CubicSpline
+
+    T = mov.shape[1]
+    s = np.linspace(0.0, 1.0, T)
+    sf = np.linspace(0.0, 1.0, fine)
+    out = []
+    for b in range(mov.shape[0]):
+        ref_f = CubicSpline(s, ref[b].numpy(), axis=0)(sf)
+        g = np.clip(np.interp(sf, s, gamma[b].numpy()), 0.0, 1.0)
+        mov_f = CubicSpline(s, mov[b].numpy(), axis=0)(g) @ R[b].numpy().T
+        out.append(float(srvf_sq_distance(srvf(torch.from_numpy(ref_f)), srvf(torch.from_numpy(mov_f)))))
+    return torch.tensor(out, dtype=torch.float64)
+
+
+def _set_threads(n: int | None) -> int | None:
+    """Set numba's thread count (``None``: leave it); returns the previous count."""
+    try:
+        import numba
+    except ImportError:  # pragma: no cover - torch backend
+        return None
+    before = numba.get_num_threads()
+    if n is not None:
+        numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))
+    return before
+
+
+def _stats(x: list[float]) -> dict[str, float]:
+    return {"mean": statistics.fmean(x), "median": statistics.median(x), "n": len(x)}
+
+
+def _compare(e_o: Tensor, e_f: Tensor) -> dict[str, float]:
+    """Mean energy ratio (mean of ours / mean of theirs) and the share of pairs where ours is not worse."""
+    return {"ratio_of_means": float(e_o.mean() / e_f.mean()),
+            "not_worse": float((e_o <= e_f * (1 + 1e-9)).double().mean())}
+
+
+# runs of the batched call per kind and thread setting (median reported), interleaved
 BATCH_REPS = 3
-
-
-def _median_time(fn: Callable[[], object], reps: int) -> float:
-    times = []
-    for _ in range(reps):
-        t = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t)
-    return statistics.median(times)
 
 
 def benchmark_curves(pairs: int = 1000, T: int = 100, fdasrsf_pairs: int = 40, single_reps: int = 30,
                      kinds: tuple[str, ...] = ("random", "helix", "pheno4d"),
-                     pheno4d: str | Path | None = None, seed: int = 0,
+                     pheno4d: str | Path | None = None, seed: int = 0, fdasrsf_rounds: int = 5,
                      **register_kw: Any) -> dict[str, Any]:
     """Time and score our curve registration (so3 rotation + DP warp) against fdasrsf on the same pairs.
 
-    Args:
-        pairs: batch size of the batched timing (per kind; median of ``BATCH_REPS`` runs).
-        T: points per curve.
-        fdasrsf_pairs: pairs per kind registered one by one by both tools for the energy comparison
-            and fdasrsf's timing (fdasrsf takes ~30 ms a pair).
-        single_reps: single-pair calls timed (median).
-        kinds: pair kinds (see :func:`curve_pairs`); ``"pheno4d"`` is skipped if its folder is missing.
-        pheno4d: folder holding ``<plant>/<file>.swc``; default ``../shared/data/pheno4d/swc`` relative
-            to the repository.
-        register_kw: passed to :func:`~torch4dtree.curves.register_curves`.
+    Settings: ``register_curves`` defaults; fdasrsf 2.7.3 ``find_rotation_and_seed_coord`` (its default: one
+    rotation, one DP) and the same alternated for ``fdasrsf_rounds`` rounds (``fdasrsf_iterated``, a second
+    reference). Energies of every tool are scored twice: on the curves' own ``T`` grid (the one our DP
+    optimises on) and on an independent fine discretisation (:func:`fine_energy`); ratios are
+    mean(ours) / mean(theirs) over the same pairs.
 
-    Returns:
-        A flat dict: ``pairs, T, ours_s_per_pair`` (single-pair median), ``ours_batched_s_per_pair``,
-        ``fdasrsf_s_per_pair``, ``speedup`` (fdasrsf single / ours single), ``speedup_batched``,
-        ``energy_ratio_ours_over_fdasrsf`` (mean of our energies / mean of theirs, both in our discrete
-        energy), ``ours_not_worse_fraction``, per-kind entries under ``"kinds"``, the DP-only timings at
-        50 points (``dp50_*``) and ``numba_first_call_s`` (compile or cache load). fdasrsf fields are
-        ``None`` when it is not importable.
+    Times, all in this process and interleaved: one pair per call (ours and fdasrsf alternate, pair by
+    pair: mean and median over ``fdasrsf_pairs`` pairs per kind); a batch of ``pairs`` pairs in one call
+    with numba on 1 thread (like for like with fdasrsf, which runs on one) and on all threads (the
+    median of ``BATCH_REPS`` runs each, alternating). Speedups divide means by means.
+
+    Returns a dict: per kind under ``"kinds"`` and pooled (``"all"``), plus ``"dp_only"`` (DP warp alone,
+    T = 50: our banded default, our full lattice and fdasrsf's DP, times and energies on both grids).
+    fdasrsf fields are ``None`` when it is not importable.
     """
     if pheno4d is None:
         from .trees import default_data_root
@@ -180,95 +237,135 @@ def benchmark_curves(pairs: int = 1000, T: int = 100, fdasrsf_pairs: int = 40, s
     cf = _fdasrsf()
     g = torch.Generator().manual_seed(seed)
     kw = {"rotation": "so3", **register_kw}
+    threads = _set_threads(None)
     out: dict[str, Any] = {"pairs": pairs, "T": T, "rotation": kw["rotation"], "fdasrsf_pairs": fdasrsf_pairs,
-                           "fdasrsf_available": cf is not None, "torch_threads": torch.get_num_threads()}
-    try:
-        import numba
-
-        out["numba_threads"] = numba.get_num_threads()
-    except ImportError:
-        out["numba_threads"] = None
+                           "fdasrsf_rounds": fdasrsf_rounds, "fdasrsf_available": cf is not None,
+                           "torch_threads": torch.get_num_threads(), "numba_threads": threads, "fine_T": FINE_T}
     t0 = time.perf_counter()
     warm_m, warm_r = curve_pairs("random", 2, T, g)
     register_curves(warm_m[:1], warm_r[:1], **kw)  # serial kernel
     register_curves(warm_m.repeat(8, 1, 1), warm_r.repeat(8, 1, 1), **kw)  # parallel kernel
     dp_warp(srvf(warm_r[:1]), srvf(warm_m[:1]))
+    dp_warp(srvf(warm_r[:1]), srvf(warm_m[:1]), neighbourhood=6, band=None)
     out["numba_first_call_s"] = time.perf_counter() - t0
 
     per_kind: dict[str, Any] = {}
-    singles, batched, theirs_t, e_ours, e_theirs = [], [], [], [], []
+    pooled: dict[str, list] = {k: [] for k in ("t_ours", "t_fda", "t_fda_it", "b1", "bn", "eo", "ef", "ei", "fo",
+                                               "ff", "fi", "c_ours", "c_fda")}
     for kind in kinds:
         if kind == "pheno4d" and not Path(pheno4d).is_dir():
             continue
         mov, ref = curve_pairs(kind, pairs, T, g, pheno4d)
-        batch_times = []
-        for _ in range(BATCH_REPS):  # the median of a few runs: a shared VM's timings swing by +-40 %
-            t = time.perf_counter()
-            res = register_curves(mov, ref, **kw)
-            batch_times.append((time.perf_counter() - t) / pairs)
-        t_batch = statistics.median(batch_times)
-        idx = [0]
-
-        def one(idx: list[int] = idx, mov: Tensor = mov, ref: Tensor = ref) -> None:
-            i = idx[0] % pairs
-            idx[0] += 1
-            register_curves(mov[i], ref[i], **kw)
-
-        t_single = _median_time(one, single_reps)
-        k: dict[str, Any] = {"ours_s_per_pair": t_single, "ours_batched_s_per_pair": t_batch,
-                             "ours_mean_distance": float(res.distance.mean()),
-                             "ours_mean_distance_before": float(res.energy_before.sqrt().mean())}
-        singles.append(t_single)
-        batched.append(t_batch)
-        if cf is not None and fdasrsf_pairs > 0:
-            n = min(fdasrsf_pairs, pairs)
-            gams, Rs, times = [], [], []
-            for i in range(n):
+        b1, bn = [], []
+        for _ in range(BATCH_REPS):  # alternate the thread settings: a shared VM's timings swing by +-40 %
+            for n, acc in ((1, b1), (threads, bn)):
+                _set_threads(n)
                 t = time.perf_counter()
-                gm, R = _fdasrsf_register(cf, mov[i], ref[i], rotation=kw["rotation"] != "none")
-                times.append(time.perf_counter() - t)
+                res = register_curves(mov, ref, **kw)
+                acc.append((time.perf_counter() - t) / pairs)
+        _set_threads(threads)
+        n = min(fdasrsf_pairs, pairs)
+        k: dict[str, Any] = {"batched_1_thread_s_per_pair": statistics.median(b1),
+                             f"batched_{threads}_threads_s_per_pair": statistics.median(bn),
+                             "ours_mean_distance": float(res.distance.mean())}
+        pooled["b1"].append(statistics.median(b1))
+        pooled["bn"].append(statistics.median(bn))
+        t_o, t_f, t_i, gams, Rs, gi, Ri, c_o, c_f = [], [], [], [], [], [], [], [], []
+        for i in range(max(n, single_reps if cf is None else 0)):  # interleaved, pair by pair
+            j = i % pairs
+            t, c = time.perf_counter(), time.process_time()
+            register_curves(mov[j], ref[j], **kw)
+            t_o.append(time.perf_counter() - t)
+            c_o.append(time.process_time() - c)
+            if cf is not None and i < n:
+                t, c = time.perf_counter(), time.process_time()
+                gm, R = _fdasrsf_register(cf, mov[j], ref[j], rotation=kw["rotation"] != "none")
+                t_f.append(time.perf_counter() - t)
+                c_f.append(time.process_time() - c)
+                t = time.perf_counter()
+                gm2, R2 = _fdasrsf_iterated(cf, mov[j], ref[j], fdasrsf_rounds)
+                t_i.append(time.perf_counter() - t)
                 gams.append(gm)
                 Rs.append(R)
-            e_f = _our_energy(mov[:n], ref[:n], torch.stack(gams), torch.stack(Rs))
-            e_o = res.energy[:n]
-            k.update({"fdasrsf_s_per_pair": statistics.median(times),
-                      "energy_ratio_ours_over_fdasrsf": float(e_o.mean() / e_f.mean()),
-                      "ours_not_worse_fraction": float((e_o <= e_f * (1 + 1e-9)).double().mean()),
-                      "fdasrsf_mean_distance": float(e_f.sqrt().mean()),
-                      "ours_mean_distance_same_pairs": float(e_o.sqrt().mean())})
-            theirs_t.append(statistics.median(times))
-            e_ours.append(e_o)
-            e_theirs.append(e_f)
+                gi.append(gm2)
+                Ri.append(R2)
+        k["ours_s_per_pair"] = _stats(t_o)
+        k["ours_cpu_s_per_pair"] = _stats(c_o)
+        pooled["t_ours"] += t_o
+        pooled["c_ours"] += c_o
+        if cf is not None and n > 0:
+            G, Rt, GI, RI = torch.stack(gams), torch.stack(Rs), torch.stack(gi), torch.stack(Ri)
+            m, r = mov[:n], ref[:n]
+            e_o, f_o = res.energy[:n], fine_energy(m, r, res.gamma[:n], res.rotation[:n])
+            e_f, f_f = _our_energy(m, r, G, Rt), fine_energy(m, r, G, Rt)
+            e_i, f_i = _our_energy(m, r, GI, RI), fine_energy(m, r, GI, RI)
+            pooled["c_fda"] += c_f
+            k.update({"fdasrsf_s_per_pair": _stats(t_f), "fdasrsf_iterated_s_per_pair": _stats(t_i),
+                      "fdasrsf_cpu_s_per_pair": _stats(c_f),
+                      "grid_vs_fdasrsf": _compare(e_o, e_f), "fine_vs_fdasrsf": _compare(f_o, f_f),
+                      "grid_vs_fdasrsf_iterated": _compare(e_o, e_i), "fine_vs_fdasrsf_iterated": _compare(f_o, f_i),
+                      "fine_over_grid": {"ours": float(f_o.mean() / e_o.mean()),
+                                         "fdasrsf": float(f_f.mean() / e_f.mean()),
+                                         "fdasrsf_iterated": float(f_i.mean() / e_i.mean())},
+                      "mean_distance_fine": {"ours": float(f_o.sqrt().mean()), "fdasrsf": float(f_f.sqrt().mean()),
+                                             "fdasrsf_iterated": float(f_i.sqrt().mean())}})
+            for key, v in (("t_fda", t_f), ("t_fda_it", t_i), ("eo", [e_o]), ("ef", [e_f]), ("ei", [e_i]),
+                           ("fo", [f_o]), ("ff", [f_f]), ("fi", [f_i])):
+                pooled[key] += v
         per_kind[kind] = k
     out["kinds"] = per_kind
-    out["ours_s_per_pair"] = statistics.median(singles) if singles else None
-    out["ours_batched_s_per_pair"] = statistics.median(batched) if batched else None
-    if theirs_t:
-        eo, ef = torch.cat(e_ours), torch.cat(e_theirs)
-        out["fdasrsf_s_per_pair"] = statistics.median(theirs_t)
-        out["speedup"] = out["fdasrsf_s_per_pair"] / out["ours_s_per_pair"]
-        out["speedup_batched"] = out["fdasrsf_s_per_pair"] / out["ours_batched_s_per_pair"]
-        out["energy_ratio_ours_over_fdasrsf"] = float(eo.mean() / ef.mean())
-        out["ours_not_worse_fraction"] = float((eo <= ef * (1 + 1e-9)).double().mean())
-    else:
-        for key in ("fdasrsf_s_per_pair", "speedup", "speedup_batched", "energy_ratio_ours_over_fdasrsf",
-                    "ours_not_worse_fraction"):
-            out[key] = None
-    out.update(_dp_only(cf, g, T=50, reps=single_reps))
+    allk: dict[str, Any] = {"ours_s_per_pair": _stats(pooled["t_ours"]),
+                            "ours_cpu_s_per_pair": _stats(pooled["c_ours"]),
+                            "batched_1_thread_s_per_pair": statistics.median(pooled["b1"]),
+                            f"batched_{threads}_threads_s_per_pair": statistics.median(pooled["bn"])}
+    if pooled["t_fda"]:
+        eo, ef, ei, fo, ff, fi = (torch.cat(pooled[x]) for x in ("eo", "ef", "ei", "fo", "ff", "fi"))
+        tf, ti, to = _stats(pooled["t_fda"]), _stats(pooled["t_fda_it"]), allk["ours_s_per_pair"]
+        cf_, co = _stats(pooled["c_fda"]), allk["ours_cpu_s_per_pair"]
+        allk.update({"fdasrsf_s_per_pair": tf, "fdasrsf_iterated_s_per_pair": ti, "fdasrsf_cpu_s_per_pair": cf_,
+                     "speedup_one_pair_by_means": tf["mean"] / to["mean"],
+                     "speedup_one_pair_cpu_by_means": cf_["mean"] / co["mean"],
+                     "speedup_batched_1_thread_by_means": tf["mean"] / allk["batched_1_thread_s_per_pair"],
+                     f"speedup_batched_{threads}_threads_by_means":
+                         tf["mean"] / allk[f"batched_{threads}_threads_s_per_pair"],
+                     "grid_vs_fdasrsf": _compare(eo, ef), "fine_vs_fdasrsf": _compare(fo, ff),
+                     "grid_vs_fdasrsf_iterated": _compare(eo, ei), "fine_vs_fdasrsf_iterated": _compare(fo, fi)})
+    out["all"] = allk
+    out["dp_only"] = _dp_only(cf, g, T=50, pairs=fdasrsf_pairs)
     return out
 
 
-def _dp_only(cf: Any | None, g: torch.Generator, T: int, reps: int) -> dict[str, Any]:
-    """DP warp alone (no rotation) for one pair of 3D curves of ``T`` points: ours vs fdasrsf."""
-    mov, ref = curve_pairs("random", 1, T, g)
+def _dp_only(cf: Any | None, g: torch.Generator, T: int, pairs: int) -> dict[str, Any]:
+    """DP warp alone (no rotation), ``pairs`` random pairs of ``T`` points, one pair per call, interleaved:
+    our banded default, our full lattice (slopes up to 6: fdasrsf's 23 steps) and fdasrsf's DP; times
+    (mean, median) and mean energies on our grid and on the fine one."""
+    mov, ref = curve_pairs("random", pairs, T, g)
+    eye = torch.eye(3, dtype=torch.float64).expand(pairs, 3, 3)
     q1, q2 = srvf(ref), srvf(mov)
-    res: dict[str, Any] = {f"dp{T}_ours_s": _median_time(lambda: dp_warp(q1, q2), reps)}
-    if cf is None:
-        res[f"dp{T}_fdasrsf_s"] = None
-        return res
-    from fdasrsf.curve_functions import curve_to_q, optimum_reparam_curve
+    names = ["banded_default", "full_lattice"] + (["fdasrsf"] if cf is not None else [])
+    times: dict[str, list[float]] = {k: [] for k in names}
+    gam: dict[str, list[Tensor]] = {k: [] for k in names}
+    for i in range(pairs):
+        for name in names:
+            t = time.perf_counter()
+            if name == "banded_default":
+                gm = dp_warp(q1[i], q2[i]).gamma
+            elif name == "full_lattice":
+                gm = dp_warp(q1[i], q2[i], neighbourhood=6, band=None).gamma
+            else:
+                from fdasrsf.curve_functions import curve_to_q, optimum_reparam_curve
+                from fdasrsf.utility_functions import invertGamma
 
-    Q1 = curve_to_q(ref[0].T.contiguous().numpy().copy())[0]
-    Q2 = curve_to_q(mov[0].T.contiguous().numpy().copy())[0]
-    res[f"dp{T}_fdasrsf_s"] = _median_time(lambda: optimum_reparam_curve(Q2, Q1, 0.0, "DP"), reps)
+                Q1 = curve_to_q(ref[i].T.contiguous().numpy().copy())[0]
+                Q2 = curve_to_q(mov[i].T.contiguous().numpy().copy())[0]
+                gm = torch.as_tensor(invertGamma(optimum_reparam_curve(Q2, Q1, 0.0, "DP")), dtype=torch.float64)
+            times[name].append(time.perf_counter() - t)
+            gam[name].append(gm)
+    res: dict[str, Any] = {"T": T, "pairs": pairs}
+    for name in names:
+        G = torch.stack(gam[name])
+        res[name] = {"s_per_pair": _stats(times[name]), "energy_grid_mean": float(_our_energy(mov, ref, G, eye).mean()),
+                     "energy_fine_mean": float(fine_energy(mov, ref, G, eye).mean())}
+    if cf is None:
+        res["fdasrsf"] = None
     return res
