@@ -208,7 +208,8 @@ def test_encode_and_score(model: FourDTreeModel, plants: list) -> None:
     odd = model.score(abnormal)
     # three times larger: lengths x3, so SRVF-based distances grow by about sqrt(3)
     assert odd.distance > 1.3 * typical.distance
-    assert odd.outside > 1.5 * typical.outside
+    # its branches still find their slots (positions are relative): the abnormality is mostly outside the modes
+    assert odd.residual > 3 * typical.residual and odd.mahalanobis > typical.mahalanobis
 
 
 def test_forecast_shapes(model: FourDTreeModel, plants: list) -> None:
