@@ -63,3 +63,13 @@ def pheno4d(*parts: str) -> Path:
             pytest.fail(f"real data not found at {path} (CI must have ../shared beside the repository)")
         pytest.skip(f"real data not found at {path}")
     return path
+
+
+@pytest.fixture(scope="session", autouse=True)
+def compiled_kernels():
+    """Compile (or load) the numba kernels once before any test: on a fresh clone the first registration
+    otherwise prints the one-time compile notice inside whichever test happens to run first (and a test of
+    one-line CLI errors then sees two lines)."""
+    from torch4dtree.curves.dp_numba import warm_up
+
+    warm_up()
