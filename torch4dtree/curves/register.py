@@ -237,33 +237,34 @@ def _register_torch(q1: Tensor, q2: Tensor, rotation: str, up: Tensor,
     return energy, before, gamma, O
 
 
-def _register_numba(q1: Tensor, q2: Tensor, rotation: str, up: Tensor,
-                    cfg: _Settings) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+def _kernel_settings(cfg: _Settings, rotation: str) -> tuple[tuple[np.ndarray, ...], np.ndarray]:
+    """The numba entry kernel's lattice steps ``(A, Bs, Af, Bf)`` and integer settings for ``cfg``."""
     A, Bs = _step_arrays(cfg.neighbourhood)
     Af, Bf = _step_arrays(cfg.band_neighbourhood)
     ints = np.array([cfg.neighbourhood, -1 if cfg.band is None else cfg.band,
                      1 << 30 if cfg.coarse is None else cfg.coarse, _MODES[rotation], cfg.max_iters,
                      cfg.refine, cfg.starts, cfg.band_neighbourhood, cfg.fine_iters], np.int64)
+    return (A, Bs, Af, Bf), ints
+
+
+def _register_numba(q1: Tensor, q2: Tensor, rotation: str, up: Tensor,
+                    cfg: _Settings) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    steps, ints = _kernel_settings(cfg, rotation)
     q1n = q1.detach().to("cpu", torch.float64).contiguous().numpy()
     q2n = q2.detach().to("cpu", torch.float64).contiguous().numpy()
     upn = up.detach().to("cpu", torch.float64).contiguous().numpy()
-    out = run_pairs(False, q2n, q1n, False, (A, Bs, Af, Bf), ints, upn, cfg.tol)[:4]
+    out = run_pairs(False, q2n, q1n, False, steps, ints, upn, cfg.tol)[:4]
     return tuple(torch.from_numpy(x).to(q1.device, q1.dtype) for x in out)  # type: ignore[return-value]
 
 
 def _register_curves_numba(moving: Tensor, reference: Tensor, srvf_input: bool, rotation: str, up: Tensor,
                            cfg: _Settings) -> CurveRegistration:
     """``register_curves`` without gradients in one numba call (input prep and outputs included)."""
-    A, Bs = _step_arrays(cfg.neighbourhood)
-    Af, Bf = _step_arrays(cfg.band_neighbourhood)
-    ints = np.array([cfg.neighbourhood, -1 if cfg.band is None else cfg.band,
-                     1 << 30 if cfg.coarse is None else cfg.coarse, _MODES[rotation], cfg.max_iters,
-                     cfg.refine, cfg.starts, cfg.band_neighbourhood, cfg.fine_iters], np.int64)
+    steps, ints = _kernel_settings(cfg, rotation)
     mov = moving.detach().to("cpu", torch.float64).contiguous().numpy()
     ref = reference.detach().to("cpu", torch.float64).contiguous().numpy()
     upn = up.detach().to("cpu", torch.float64).contiguous().numpy()
-    energy, before, gamma, O, reg, q_reg = run_pairs(True, mov, ref, srvf_input, (A, Bs, Af, Bf), ints, upn,
-                                                     cfg.tol)
+    energy, before, gamma, O, reg, q_reg = run_pairs(True, mov, ref, srvf_input, steps, ints, upn, cfg.tol)
     distance = np.sqrt(np.maximum(energy, 0.0))
     dt, dev = reference.dtype, reference.device
     return CurveRegistration(*(torch.from_numpy(x).to(dev, dt)

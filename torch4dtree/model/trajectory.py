@@ -15,6 +15,7 @@ import torch
 from torch import Tensor
 
 from ..space.fitted import FittedModule, NotFittedError
+from ..space.pca import check_components
 from ..temporal.registration import TemporalRegistration, register_trajectories
 from ..temporal.trajectory import trajectory_from_srvf, trajectory_srvf
 
@@ -128,12 +129,7 @@ class TrajectoryPCA(FittedModule):
 
     def __init__(self, n_components: int | None = None, variance: float = 0.95) -> None:
         super().__init__()
-        if n_components is not None and (isinstance(n_components, bool) or int(n_components) < 1):
-            raise ValueError(f"n_components must be None or a positive int, got {n_components!r}")
-        if not 0.0 < variance <= 1.0:
-            raise ValueError(f"variance must be in (0, 1], got {variance}")
-        self.n_components = None if n_components is None else int(n_components)
-        self.variance = float(variance)
+        self.n_components, self.variance = check_components(n_components, variance)
         self.n_t, self.k, self.total_variance_ = 0, 0, 0.0
         for name in ("mean", "explained_variance", "explained_variance_ratio"):
             self.register_buffer(name, torch.zeros(0))

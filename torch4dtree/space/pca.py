@@ -27,6 +27,15 @@ __all__ = ["TreePCA"]
 DECODE_MIN_FRACTION = 0.01
 
 
+def check_components(n_components: int | None, variance: float) -> tuple[int | None, float]:
+    """Validate a PCA's ``k`` (None or a positive int) and variance share (in ``(0, 1]``)."""
+    if n_components is not None and (isinstance(n_components, bool) or int(n_components) < 1):
+        raise ValueError(f"n_components must be None or a positive int, got {n_components!r}")
+    if not 0.0 < variance <= 1.0:
+        raise ValueError(f"variance must be in (0, 1], got {variance}")
+    return (None if n_components is None else int(n_components)), float(variance)
+
+
 class TreePCA(FittedModule):
     """PCA in the tree space: ``k`` fixed (``n_components``) or the smallest ``k`` explaining ``variance``.
 
@@ -43,12 +52,7 @@ class TreePCA(FittedModule):
 
     def __init__(self, n_components: int | None = None, variance: float = 0.99) -> None:
         super().__init__()
-        if n_components is not None and (isinstance(n_components, bool) or int(n_components) < 1):
-            raise ValueError(f"n_components must be None or a positive int, got {n_components!r}")
-        if not 0.0 < variance <= 1.0:
-            raise ValueError(f"variance must be in (0, 1], got {variance}")
-        self.n_components = None if n_components is None else int(n_components)
-        self.variance = float(variance)
+        self.n_components, self.variance = check_components(n_components, variance)
         self.lambdas: Lambdas = (1.0, 1.0, 1.0)
         self.M = 0
         self.d = 0
