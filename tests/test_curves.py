@@ -136,3 +136,14 @@ def test_interpolate_and_project_are_inverse():
     s_back, dist = project_on_polyline(beta.expand(5, -1, -1), pts)
     assert dist.max() < 1e-9
     torch.testing.assert_close(s_back, s[0], atol=1e-6, rtol=0)
+
+
+def test_two_point_curves_are_curves():
+    """The shortest curve, one segment: its SRVF, inverse and norm (= length) are exact, no error."""
+    beta = torch.tensor([[[0.0, 0.0, 0.0], [3.0, 4.0, 0.0]]], dtype=torch.float64)
+    q = srvf(beta)
+    torch.testing.assert_close(q, torch.tensor([[[3.0, 4.0, 0.0]]], dtype=torch.float64) / math.sqrt(5))
+    torch.testing.assert_close(inverse_srvf(q), beta)
+    torch.testing.assert_close(srvf_sq_norm(q), torch.tensor([5.0], dtype=torch.float64))
+    with pytest.raises(ValueError, match="at least 2 points"):
+        srvf(beta[:, :1])
