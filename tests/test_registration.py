@@ -272,7 +272,9 @@ def test_features_norm_is_the_recursive_metric():
     lam = (1.5, 0.7, 0.6)
     r = register_trees(A, B, lambdas=lam)
     al = r.aligned
+    assert al.T == A.T and al.num_trees == len(al) == 2 and al.num_slots >= int(B.num_branches[0])
     f = al.features()
+    assert f.shape == (2, al.num_slots * (A.T - 1) * 3 + al.num_slots - 1)
     assert float((f[0] - f[1]).norm()) == pytest.approx(float(r.distance), rel=1e-9)
     assert float((f[0] - f[1]).square().sum()) == pytest.approx(_recursive_sq(al, 0), rel=1e-9)
     # norm of a tree = its recursive subtree norm (distance to the null tree)
