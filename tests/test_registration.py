@@ -477,3 +477,34 @@ def test_children_refit_is_skipped_where_the_position_terms_are_negligible(monke
     r0 = register_trees(A, B, lp_relative=False)
     assert r.matches == r0.matches and torch.equal(r.gamma, r0.gamma)
     assert float(r.distance) == float(r0.distance)
+
+
+def test_cycle_consistency_bookkeeping_with_known_answers():
+    """Shares with known values: B is A plus one branch, reparameterised. B's extra branch has no image
+    (``unmatched`` = its share of B's length), the other points return up to the warps' residual; ``error_all``
+    counts the unmatched points as failures (= error (1 - unmatched) + unmatched at every eps), errors fall
+    with eps, and at a huge eps only the lost points fail. Labels only in one tree count right when unmatched."""
+    A = random_tree(np.random.default_rng(4))
+    B0 = random_tree(np.random.default_rng(4), extra=(0.6, 7.0))
+    B, _ = transformed_copy_truth(B0, torch.Generator().manual_seed(4), "none", strength=0.5)
+    extra = int((B.label == int(B.num_branches[0]) - 1).nonzero()[0])
+    eps = (1e9, 0.1, 0.02, 0.0)
+    cc = cycle_consistency(B, A, eps=eps)
+    lengths = B.branch_lengths()
+    assert cc.unmatched == pytest.approx(float(lengths[extra] / lengths.sum()), rel=1e-9)
+    err, err_all = cc.error.numpy(), cc.error_all.numpy()
+    np.testing.assert_allclose(err_all, err * (1 - cc.unmatched) + cc.unmatched, rtol=1e-12, atol=1e-15)
+    assert (np.diff(err) >= 0).all() and 0 <= err[0] <= err[-1] <= 1  # eps decreasing: errors rise
+    assert err[0] == pytest.approx(cc.lost, abs=1e-15) and err[-1] > 0.05  # eps = 0: inexact points fail
+    N, Tn = B.points.shape[:2]
+    no_cycle = torch.isnan(cc.distance).reshape(N, Tn)
+    assert no_cycle[extra].all() and not no_cycle[torch.arange(N) != extra].any()
+    assert (cc.distance[~torch.isnan(cc.distance)] >= 0).all()
+    assert float(cc.weight.sum()) == pytest.approx(float(lengths.sum()), rel=1e-12)
+    # branch accuracy: the extra label exists only in B, and leaving it unmatched is right (both directions)
+    assert branch_accuracy(register_trees(A, B), A, B) == 1.0
+    assert branch_accuracy(register_trees(B, A), B, A) == 1.0
+    # a flat tree (no vertical extent): eps is a fraction of its bounding-box diagonal instead
+    flat = A.with_points(A.points * torch.tensor([1.0, 1.0, 0.0], dtype=A.points.dtype))
+    flat_cc = cycle_consistency(flat, flat)
+    assert flat_cc.unmatched == 0.0 and float(flat_cc.error_all.max()) == 0.0
