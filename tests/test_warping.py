@@ -372,3 +372,19 @@ def test_bad_input_raises() -> None:
         W.dp_warp(srvf(x), srvf(x), neighbourhood=0)
     with pytest.raises(ValueError, match="at least 2"):
         W.random_warp(2, 1)
+
+
+def test_backend_choice_is_honoured(monkeypatch: pytest.MonkeyPatch) -> None:
+    """``backend="torch"`` runs the torch twin and ``"numba"`` / ``"auto"`` (CPU) the kernels: the two agree
+    so closely that a swapped choice would pass every comparison, so it is observed directly."""
+    from torch4dtree.curves import register as R
+
+    def boom(*args: object) -> None:
+        raise RuntimeError("torch DP called")
+
+    monkeypatch.setattr(R, "_dp_torch", boom)
+    q1, q2 = srvf(rough_curves(2, 12, seed=60)), srvf(rough_curves(2, 12, seed=61))
+    for backend in ("numba", "auto"):
+        W.dp_warp(q1, q2, backend=backend)
+    with pytest.raises(RuntimeError, match="torch DP called"):
+        W.dp_warp(q1, q2, backend="torch")
