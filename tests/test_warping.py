@@ -243,6 +243,11 @@ def test_batch_equals_one_by_one(monkeypatch: pytest.MonkeyPatch) -> None:
             assert one.gamma.shape == (40,) and one.rotation.shape == (3, 3)
             assert torch.equal(one.gamma, batch.gamma[b])
             assert torch.allclose(one.distance, batch.distance[b], rtol=1e-12, atol=0)
+    dp_batch = W.dp_warp(srvf(x), srvf(y))
+    for b in range(4):  # dp_warp on one unbatched pair too
+        dp_one = W.dp_warp(srvf(x[b]), srvf(y[b]))
+        assert dp_one.gamma.shape == (40,) and dp_one.energy.shape == ()
+        assert torch.equal(dp_one.gamma, dp_batch.gamma[b]) and float(dp_one.energy) == float(dp_batch.energy[b])
 
 
 def test_float32_and_float64() -> None:
