@@ -28,7 +28,6 @@ import time
 from collections.abc import Sequence
 from typing import NamedTuple
 
-import numpy as np
 import torch
 from torch import Tensor
 
@@ -39,7 +38,7 @@ from ..trees.registration import effective_lambdas, index_order_matches, registe
 from ..trees.structures import Trees, TreeSequence
 from .registration import TemporalRegistration, geodesic4d, register_trajectories
 from .trajectory import resample_trajectory, trajectory_srvf
-from .within import AlignedSequence, register_sequence
+from .within import AlignedSequence, _inverse_at, register_sequence
 
 __all__ = ["SpatiotemporalRegistration", "combine_many", "combine_sequences", "place_sequence", "register4d",
            "representative_tree"]
@@ -66,13 +65,6 @@ def representative_tree(seq: AlignedSequence) -> Trees:
     s_out = torch.where(a.slot_parent >= 0, s, torch.zeros_like(s)).clamp(0, 1)
     return Trees(torch.stack(curves), a.slot_parent.clone(), s_out, torch.tensor([S], device=last.device),
                  slots.clone())
-
-
-def _warp_parameter(s: Tensor, gamma: Tensor) -> Tensor:
-    """``gamma^{-1}(s)`` for a warp ``gamma (T,)`` on the uniform grid (where a child sits on its warped parent)."""
-    grid = torch.linspace(0, 1, gamma.shape[-1], dtype=gamma.dtype, device=gamma.device)
-    g = gamma.detach().cpu().numpy()
-    return torch.as_tensor(np.interp(s.detach().cpu().numpy(), g, grid.cpu().numpy()), dtype=s.dtype, device=s.device)
 
 
 def place_sequence(mov: AlignedSequence, slot_of: Sequence[int], num_slots: int, gamma: Tensor,
@@ -103,8 +95,10 @@ def place_sequence(mov: AlignedSequence, slot_of: Sequence[int], num_slots: int,
     q[:, idx] = qm * ma.present[..., None, None]
     # a child's parameter moves with its parent's warp
     sm = ma.s.clone()
-    for k in range(1, S_m):
-        sm[:, k] = _warp_parameter(ma.s[:, k], g[mov_parent[k]])
+    if S_m > 1:  # every frame's child slots at once: (n_m * (S_m - 1),) parameters through their parents' warps
+        parents = torch.as_tensor(mov_parent[1:], dtype=torch.long, device=dev)
+        warps = g[parents].repeat(n_m, 1)
+        sm[:, 1:] = _inverse_at(warps, ma.s[:, 1:].reshape(-1)).reshape(n_m, S_m - 1)
     s[:, idx] = sm
     present[:, idx] = ma.present
     source[:, idx] = torch.arange(S_m, device=dev)
