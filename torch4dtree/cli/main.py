@@ -28,6 +28,7 @@ COMMANDS = (
     ("sample", "sample", "generate 4D trees from a fitted model: sequence folders and videos"),
     ("forecast", "forecast", "complete a partly observed 4D tree with a fitted model"),
     ("render", "render", "render a tree file, sequence or dataset folder to PNG / GIF / MP4"),
+    ("evaluate", "evaluate", "the paper's experiments and the generative model's quality on a data folder (report)"),
     ("benchmark", "benchmark", "time the registration engine"),
     ("warmup", "warmup", "compile the registration kernels now (once per install), so later commands start fast"),
 )

@@ -71,6 +71,7 @@ class EvalData:
     root: Path
     source: str
     plants: list[Plant4D] = field(default_factory=list)
+    cache: dict = field(default_factory=dict, repr=False)  # registrations shared by experiments (.pairs)
 
     @property
     def kinds(self) -> list[str]:

@@ -1,0 +1,77 @@
+"""``torch4dtree evaluate DATA_DIR [--json] [--out DIR]``: the paper's experiments and the generative model's quality.
+
+``DATA_DIR`` is a Pheno4D-style folder (``mat/`` and / or ``swc/`` sequence folders, as ``../shared/data/pheno4d``)
+or a synthetic dataset folder (``torch4dtree synth``). Writes ``report.md`` (tables with the paper's figures beside
+ours, figures) and ``report.json`` into ``--out`` (a new or empty folder; ``--overwrite`` replaces an earlier
+report there); ``--json`` prints the report as one JSON object. See :mod:`torch4dtree.evaluate`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+from pathlib import Path
+
+from .options import UsageError, int_at_least
+
+SECTION_NAMES = ("spatial", "temporal", "generative", "truth", "robustness")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("data", help="a Pheno4D-style folder (mat/ and/or swc/ inside) or a synthetic dataset folder")
+    p.add_argument("--out", default=None, metavar="DIR",
+                   help="write report.md, report.json and the figures here (a new or empty folder) (default: none)")
+    p.add_argument("--json", action="store_true", help="print the report as one JSON object on stdout")
+    p.add_argument("--quick", action="store_true", help="small versions of every experiment (a first look, tests)")
+    p.add_argument("--sections", default=",".join(SECTION_NAMES), metavar="LIST",
+                   help="comma-separated experiments to run (default: %(default)s)")
+    p.add_argument("--T", type=int_at_least(4), default=64, metavar="N",
+                   help="points per branch of the registrations (default: %(default)s)")
+    p.add_argument("--T-cycle", type=int_at_least(4), default=256, metavar="N",
+                   help="points per branch of the cycle-consistency table (default: %(default)s)")
+    p.add_argument("--n-t", type=int_at_least(2), default=32, metavar="N",
+                   help="common time samples of the trajectories (default: %(default)s)")
+    p.add_argument("--seed", type=int, default=0, help="seed of every random choice (default: %(default)s)")
+    p.add_argument("--no-figures", action="store_true", help="skip the rendered figures")
+    p.add_argument("--overwrite", action="store_true", help="replace an earlier report in --out")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+
+
+def _prepare_out(out: Path, overwrite: bool) -> None:
+    if not out.exists() or (out.is_dir() and not any(out.iterdir())):
+        return
+    if not overwrite:
+        raise FileExistsError(f"{out} exists and is not empty; pass --overwrite to replace an earlier report")
+    if not (out / "report.json").is_file():
+        raise FileExistsError(f"{out} holds no report.json: not replacing a folder that is not an evaluation report")
+    shutil.rmtree(out)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..evaluate import EvalSettings, evaluate
+    from ..evaluate.run import dumps
+
+    sections = [s.strip() for s in args.sections.split(",") if s.strip()]
+    unknown = [s for s in sections if s not in SECTION_NAMES]
+    if unknown or not sections:
+        raise UsageError(f"--sections: unknown {unknown or 'empty list'}; choose from {', '.join(SECTION_NAMES)}")
+    data = Path(args.data)
+    if not data.is_dir():
+        raise FileNotFoundError(f"{data}: no such folder")
+    out = Path(args.out) if args.out else None
+    if out is not None:
+        if not out.parent.is_dir():
+            raise FileNotFoundError(f"{out.parent}: the folder for --out does not exist")
+        _prepare_out(out, args.overwrite)
+    settings = EvalSettings(T=args.T, T_cycle=args.T_cycle, n_t=args.n_t, quick=args.quick, seed=args.seed,
+                            figures=not args.no_figures and out is not None)
+    report = evaluate(data, out, settings, sections, progress=not args.quiet)
+    if args.json:
+        print(dumps(report))
+    elif out is not None:
+        print(f"report: {out / 'report.md'} (and report.json)")
+    else:
+        from ..evaluate.report import markdown
+
+        print(markdown(report, sections))
+    return 0
