@@ -1,0 +1,94 @@
+"""``torch4dtree evaluate``: the report's structure, that every registration it reports lowered the distance, that
+the generative metrics are finite and in range, data discovery and the command's errors (issue 14)."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import pytest
+from conftest import pheno4d
+
+from torch4dtree.cli.main import main
+from torch4dtree.data import synthetic_dataset
+from torch4dtree.data.writing import write_dataset
+from torch4dtree.evaluate import EvalSettings, evaluate, load_eval_data, sources_of
+from torch4dtree.io.dataset import DatasetError
+
+EPS = ("0.1", "0.05", "0.02", "0.01")
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("eval") / "tomato"
+    write_dataset(synthetic_dataset("tomato", plants=4, seed=5, n_frames=4), out)
+    return out
+
+
+@pytest.fixture(scope="module")
+def report(dataset: Path, tmp_path_factory) -> tuple[dict, Path]:
+    out = tmp_path_factory.mktemp("report") / "r"
+    settings = EvalSettings(T=16, T_cycle=24, n_t=8, quick=True, figures=False)
+    return evaluate(dataset, out, settings, sections=("spatial",)), out
+
+
+def test_report_files_and_json_contract(report: tuple[dict, Path]) -> None:
+    rep, out = report
+    assert (out / "report.md").is_file()
+    on_disk = json.loads((out / "report.json").read_text())
+    cc = on_disk["table2"]["cycle_consistency"]
+    assert set(cc) == set(EPS)
+    for eps in EPS:
+        for stat in ("mean", "median", "std"):
+            assert 0.0 <= cc[eps][stat] <= 1.0  # fractions, not percentages
+    # a looser threshold never fails more points
+    means = [cc[e]["mean"] for e in EPS]
+    assert means == sorted(means)
+    assert on_disk["timings"]["total"]["seconds"] > 0
+    md = (out / "report.md").read_text()
+    assert "Table 1" in md and "Table 2" in md and "0.94 %" in md  # the paper's figure beside ours
+
+
+def test_every_registration_lowered_its_distance(report: tuple[dict, Path]) -> None:
+    t1 = report[0]["table1"]
+    for kinds in t1["trees3d"].values():
+        for r in kinds.values():
+            assert r["pairs"] > 0 and r["raised"] == 0 and r["after"]["mean"] <= r["before"]["mean"]
+    for r in t1["plants4d"].values():
+        assert r["pairs"] > 0
+        for row in r["rows"]:
+            assert row["after"] <= row["before"] + 1e-9
+        assert all(math.isfinite(r["after"][s]) for s in ("mean", "median", "std"))
+
+
+def test_existing_report_is_not_overwritten(report: tuple[dict, Path], dataset: Path, capsys) -> None:
+    _, out = report
+    before = (out / "report.json").read_text()
+    with pytest.raises(FileExistsError):
+        evaluate(dataset, out, EvalSettings(quick=True, figures=False), sections=("spatial",))
+    assert main(["evaluate", str(dataset), "--out", str(out), "--quick", "--sections", "spatial"]) == 2
+    assert "--overwrite" in capsys.readouterr().err
+    assert (out / "report.json").read_text() == before
+
+
+def test_bad_input_fails_clearly(dataset: Path, tmp_path, capsys) -> None:
+    assert main(["evaluate", str(dataset), "--sections", "spatial,tables"]) == 2
+    assert "tables" in capsys.readouterr().err
+    (tmp_path / "empty").mkdir()
+    assert main(["evaluate", str(tmp_path / "empty")]) == 2
+    assert "neither a Pheno4D-style folder" in capsys.readouterr().err
+    with pytest.raises(DatasetError, match="not a folder"):
+        sources_of(tmp_path / "missing")
+
+
+def test_pheno4d_discovery() -> None:
+    root = pheno4d()
+    assert sources_of(root) == ["mat", "swc"]
+    mat = load_eval_data(root, "mat", T=16)
+    assert mat.kinds == ["tomato", "maize"]
+    names = [p.name for p in mat.plants]
+    assert not any(n.endswith(("_alt", "_altered")) for n in names)  # altered copies ride along, not as plants
+    tom1 = next(p for p in mat.plants if p.name == "tom_1_seq")
+    assert tom1.altered is not None and len(tom1.altered) < len(tom1.sequence)
+    assert len(tom1.files) == len(tom1.sequence) and all(f.is_file() for f in tom1.files)
