@@ -508,3 +508,30 @@ def test_cycle_consistency_bookkeeping_with_known_answers():
     flat = A.with_points(A.points * torch.tensor([1.0, 1.0, 0.0], dtype=A.points.dtype))
     flat_cc = cycle_consistency(flat, flat)
     assert flat_cc.unmatched == 0.0 and float(flat_cc.error_all.max()) == 0.0
+
+
+@pytest.mark.parametrize("rotation", ["vertical", "so3"])
+def test_rotation_starts_spread_over_a_full_turn(rotation):
+    """The starting rotations spin the main branches' rotation about one axis by evenly spaced angles covering the
+    whole turn (a half turn leaves rotations near 180-360 degrees to the alternation alone; the registration tests
+    could not see that bug because the side branches usually fix the spin anyway)."""
+    import math
+
+    from torch4dtree.trees.registration import _initial_rotations, _prepare
+
+    rng = np.random.default_rng(3)
+    A, B = random_tree(rng, T=32), random_tree(rng, T=32)
+    lam = (1.0, 1.0, 1.0)
+    up = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)
+    n = 12
+    starts = _initial_rotations(_prepare(B, lam), _prepare(A, lam), rotation, up, n, {})
+    assert len(starts) == n + 1  # the identity, the main branches' rotation, n - 1 spins of it
+    base = starts[1]
+    angles = []
+    for R in starts[2:]:
+        _check_rotation(R)
+        S = R @ base.T  # the spin alone: a rotation by some angle about one axis
+        angles.append(math.degrees(math.acos(max(-1.0, min(1.0, (float(torch.trace(S)) - 1) / 2)))))
+    # spins by k * 30 degrees, k = 1..11: their rotation angles are 30, 60, ..., 180, ..., 60, 30
+    expected = sorted(min(k * 360 / n, 360 - k * 360 / n) for k in range(1, n))
+    assert np.allclose(sorted(angles), expected, atol=1e-6)
