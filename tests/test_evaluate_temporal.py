@@ -103,3 +103,14 @@ def test_kept_days(data):
     assert table3._kept_days(with_alt, g) == ([0, 2, 4], True)
     lost_end = Plant4D(plant.kind, plant.name, plant.sequence, plant.files, altered=plant.sequence[[0, 2, 3]])
     assert table3._kept_days(lost_end, g)[1] is False  # no true warp without the last day: simulated instead
+
+
+def test_unsynchronised_without_warp_is_the_pair(data, report):
+    """With the identity warp and no missing days, the re-timed moving plant is the pair's own trajectory."""
+    ref, mov, r = pairs.registered_pairs(data, "tomato", SETTINGS)[0]  # cached by the report
+    ident = table3.PlantWarp(torch.linspace(0, 1, table3.WARP_GRID, dtype=torch.float64), list(range(len(
+        r.sequences[1]))), False)
+    res = table3._unsynchronised(r, ident, SETTINGS.n_t)
+    assert res["before"] == pytest.approx(r.distance_after_spatial, rel=1e-9)
+    assert res["after"] == pytest.approx(r.distance_after_temporal, rel=1e-9)
+    assert report["table3"]["kinds"]["tomato"]["pairs"]["rows"][0]["moving"] == mov
