@@ -24,7 +24,7 @@ __all__ = ["FULL", "QUICK", "benchmark_all", "ratios"]
 
 # moderate sizes: the whole run takes a few minutes on 2 shared cores
 FULL: dict[str, dict[str, Any]] = {
-    "curves": {"pairs": 200, "T": 100, "fdasrsf_pairs": 20, "single_reps": 30},
+    "curves": {"pairs": 1000, "T": 100, "fdasrsf_pairs": 30, "single_reps": 30},
     "trees": {"T": 64, "source": "swc"},
     "4d": {"T": 64, "all_pairs": True},
     "temporal_one_pair": {"pairs": 50, "n_t": 32, "k": 10},
