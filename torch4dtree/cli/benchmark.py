@@ -18,15 +18,19 @@ PHENO4D_HELP = ("The Pheno4D skeletons are not part of this repository: they are
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("what", choices=["curves", "trees", "4d"],
+    p.add_argument("what", choices=["curves", "trees", "4d", "all"],
                    help="curves: curve registration vs fdasrsf (random, helix and, if present, Pheno4D curves); "
                         "trees: all consecutive-day Pheno4D pairs vs the paper (needs the Pheno4D skeletons); "
-                        "4d: spatiotemporal registration of Pheno4D plants, temporal registration, 4D geodesics")
+                        "4d: spatiotemporal registration of Pheno4D plants, temporal registration, 4D geodesics; "
+                        "all: curves, trees, 4d and the generative model (fit, 4D mean, sampling, decoding) at "
+                        "moderate sizes (a few minutes), with ratios against the paper and fdasrsf (the Pheno4D "
+                        "parts are skipped, with a note, when the data is missing)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--quick", action="store_true", help="all: tiny sizes (about a minute), for a first look")
     p.add_argument("--pairs", type=positive_int, default=1000, metavar="N",
-                   help="curves: pairs in the batched measurement (default: %(default)s)")
+                   help="curves: pairs in the batched measurement (default: %(default)s; all uses its own sizes)")
     p.add_argument("--points", type=int_at_least(4), default=100, metavar="T",
-                   help="curves: points per curve (default: %(default)s)")
+                   help="curves: points per curve (default: %(default)s; all uses its own sizes)")
     p.add_argument("--data", type=Path, default=None, metavar="DIR",
                    help="the Pheno4D folder holding swc/ (default: $TORCH4DTREE_PHENO4D, else "
                         "../shared/data/pheno4d beside the repository)")
@@ -38,8 +42,35 @@ def _data_root(args: argparse.Namespace) -> Path:
     return args.data if args.data is not None else default_data_root()
 
 
+def _print_all(result: dict) -> None:
+    """``benchmark all`` as text: the seconds per section, the notes and the ratio table."""
+    def num(x: float | None) -> str:
+        return "-" if x is None else f"{x:.3g}"
+
+    print("seconds: " + ", ".join(f"{k} {v:.1f}" for k, v in result["seconds"].items()))
+    for note in result["notes"]:
+        print(f"note: {note}")
+    print(f"{'ratio (reference / ours)':>40}  {'ours s':>9}  {'ref. s':>9}  {'ratio':>7}  reference")
+    for name, r in result["ratios"].items():
+        print(f"{name:>40}  {num(r['ours_s']):>9}  {num(r['reference_s']):>9}  {num(r['ratio']):>7}  {r['reference']}")
+
+
 def run(args: argparse.Namespace) -> int:
     root = _data_root(args)
+    if args.quick and args.what != "all":
+        raise UsageError("--quick applies to 'benchmark all' only")
+    if args.what == "all":
+        import sys
+
+        from ..bench.all import benchmark_all
+
+        result = benchmark_all(root, quick=args.quick,
+                               log=lambda line: print(f"torch4dtree benchmark all: {line}", file=sys.stderr))
+        if args.json:
+            print(json.dumps(result))
+        else:
+            _print_all(result)
+        return 0
     if args.what in ("trees", "4d") and not (root / "swc").is_dir():
         source = "--data" if args.data is not None else (
             "$TORCH4DTREE_PHENO4D" if os.environ.get("TORCH4DTREE_PHENO4D") else "the default location")

@@ -110,37 +110,45 @@ def build_report(model: Any, dataset: str, seqs: list[Any], seconds: dict[str, f
     }
 
 
-def write_figures(model: Any, out: Path, size: int, seed: int, n_samples: int = 3) -> list[str]:
-    """``mean.png``, ``modes.png``, ``samples.png`` in ``out``."""
+def write_figures(model: Any, out: Path, size: int, seed: int, n_samples: int = 3, note: str | None = None
+                  ) -> list[str]:
+    """``mean.png``, ``modes.png``, ``samples.png`` in ``out``; ``note`` (e.g. what the model was fitted on) is a
+    second title line of each."""
     import torch
 
     from ..render import render_grid, save_image
 
     written = []
     mean = model.decode_trajectories(model.mean.trajectory[None].to(model.pca.mean), ["mean"])[0]
-    sub = _columns(mean)
+    sub = time_columns(mean)
     img = render_grid([sub], row_labels=["4D mean"], col_labels=[f"t = {t:.3g}" for t in sub.times.tolist()],
-                      title="mean 4D tree", size=size, color="label")
+                      title=_titled("mean 4D tree", note), size=size, color="label")
     written.append(str(save_image(out / "mean.png", img)))
     rows, labels = [], []
     taus = (-2.0, -1.0, 0.0, 1.0, 2.0)
     for i, mode in enumerate(model.modes(taus, modes=min(3, model.n_modes))):
         for t, seq in zip(taus, mode):
-            rows.append(_columns(seq))
+            rows.append(time_columns(seq))
             labels.append(f"mode {i + 1}, {t:+.0f} sd")
-    img = render_grid(rows, row_labels=labels, title="modes of variation (rows) over time (columns)", size=size,
-                      color="label")
+    img = render_grid(rows, row_labels=labels, title=_titled("modes of variation (rows) over time (columns)", note),
+                      size=size, color="label")
     written.append(str(save_image(out / "modes.png", img)))
     samples = model.sample(n_samples, generator=torch.Generator().manual_seed(seed))
-    img = render_grid([_columns(s) for s in samples], row_labels=[s.name for s in samples],
-                      title="samples over time", size=size, color="label")
+    img = render_grid([time_columns(s) for s in samples], row_labels=[s.name for s in samples],
+                      title=_titled("samples over time", note), size=size, color="label")
     written.append(str(save_image(out / "samples.png", img)))
     return written
 
 
-def _columns(seq: Any) -> Any:
+def _titled(title: str, note: str | None) -> str:
+    return f"{title}\n{note}" if note else title
+
+
+def time_columns(seq: Any, columns: int = FIGURE_COLUMNS) -> Any:
+    """The frames of a 4D tree at ``columns`` evenly spaced indices, first and last included (a figure's columns;
+    fewer if the sequence is shorter)."""
     n = len(seq)
-    idx = sorted({round(j * (n - 1) / (FIGURE_COLUMNS - 1)) for j in range(FIGURE_COLUMNS)})
+    idx = sorted({round(j * (n - 1) / max(columns - 1, 1)) for j in range(columns)})
     return seq[idx]
 
 
