@@ -16,10 +16,11 @@ from torch import Tensor
 
 from ..space.fitted import FittedModule, NotFittedError
 from ..space.pca import check_components
-from ..temporal.registration import TemporalRegistration, register_trajectories
+from ..temporal.registration import TemporalRegistration, register_trajectories, time_warp_trajectory
 from ..temporal.trajectory import trajectory_from_srvf, trajectory_srvf
+from ..temporal.within import _inverse_at
 
-__all__ = ["TrajectoryMean", "TrajectoryPCA", "flatten_srvf", "unflatten_srvf"]
+__all__ = ["TrajectoryMean", "TrajectoryPCA", "centre_warps", "flatten_srvf", "unflatten_srvf"]
 
 
 def _check_alpha(alpha: Tensor, name: str = "alpha") -> None:
@@ -43,9 +44,25 @@ def unflatten_srvf(x: Tensor, n_t: int, k: int) -> tuple[Tensor, Tensor]:
     return x[..., :k], x[..., k:].unflatten(-1, (n_t - 1, k)) * math.sqrt(n_t - 1)
 
 
+def centre_warps(warp: Tensor) -> Tensor:
+    """``warp (N, n_t)`` composed with the inverse of their average: ``gamma_i o gamma_bar^{-1}``.
+
+    The registered distances do not change when the mean and every registered trajectory are re-timed by one
+    warp, so the Karcher iteration is free to drift along that direction; it did, to a mean whose warps all sat
+    near 0 until one late time and then jumped to 1 (the mean collapsed onto a few time samples). Centering each
+    round keeps the warps' average at the identity, as in the elastic Karcher means of Srivastava & Klassen
+    (2016, ch. 8); the plain average of the warps stands in for their Karcher mean (close for mild warps).
+    """
+    N, n_t = warp.shape
+    grid = torch.linspace(0, 1, n_t, dtype=warp.dtype, device=warp.device)
+    mean = warp.mean(0)
+    inverse = _inverse_at(mean.expand(n_t, n_t), grid)  # gamma_bar^{-1} on the grid
+    return time_warp_trajectory(warp[..., None], inverse.expand(N, n_t))[..., 0]
+
+
 class TrajectoryMean(FittedModule):
-    """The 4D Karcher mean: iterate {temporally register every trajectory onto the mean; average SRVFs and start
-    points} (the first mean is the plain average, identity warps).
+    """The 4D Karcher mean: iterate {temporally register every trajectory onto the mean; centre the warps
+    (:func:`centre_warps`); average SRVFs and start points} (the first mean is the plain average, identity warps).
 
     Args:
         max_iters: at most this many rounds of registration onto a mean.
@@ -54,7 +71,8 @@ class TrajectoryMean(FittedModule):
         registration: keyword arguments of :func:`register_trajectories` (DP settings).
 
     Fitted buffers: ``start (k,)``, ``q (n_t - 1, k)``, ``trajectory (n_t, k)``. ``energies_`` (one per round,
-    the energy of the registrations onto that round's mean, never increasing) travels in the extra state.
+    the energy of the registrations onto that round's mean) travels in the extra state; the mean kept is the
+    round of lowest energy.
     """
 
     _fitted_buffers = ("start", "q", "trajectory")
@@ -93,23 +111,32 @@ class TrajectoryMean(FittedModule):
         return register_trajectories(self.trajectory.expand_as(mov), mov, **self.registration)
 
     def fit(self, alpha: Tensor) -> TrajectoryMean:
-        """Fit on ``alpha (N, n_t, k)``. Returns ``self``; ``registered_`` holds the registrations onto the result."""
+        """Fit on ``alpha (N, n_t, k)``. Returns ``self``; ``registered_`` holds the registrations onto the result.
+
+        Stops when a round lowers the energy by less than ``tol`` (relatively) or after ``max_iters`` rounds, and
+        keeps the round of lowest energy (centering is exact only in the continuum, so a round can end a little
+        higher than the one before; that round ends the iteration and is not kept).
+        """
         _check_alpha(alpha)
         a = alpha.detach()
         start, q = trajectory_srvf(a)
         mean_start, mean_q = start.mean(0), q.mean(0)
         self.energies_ = []
-        reg = None
+        best: tuple[float, Tensor, TemporalRegistration] | None = None
         for _ in range(self.max_iters):
             self._set_fitted(start=mean_start, q=mean_q, trajectory=trajectory_from_srvf(mean_start, mean_q))
             reg = self.register(a)
             energy = float(reg.distance.square().sum())
             self.energies_.append(energy)
-            new_q = reg.q_registered.mean(0)
+            if best is None or energy < best[0]:
+                best = (energy, mean_q, reg)
             if len(self.energies_) > 1 and self.energies_[-2] - energy <= self.tol * max(self.energies_[-2], 1e-300):
                 break
-            mean_q = new_q
-        self.registered_ = reg
+            _, q_centred = trajectory_srvf(time_warp_trajectory(a, centre_warps(reg.warp)))
+            mean_q = q_centred.mean(0)
+        assert best is not None
+        _, mean_q, self.registered_ = best
+        self._set_fitted(start=mean_start, q=mean_q, trajectory=trajectory_from_srvf(mean_start, mean_q))
         return self
 
 
