@@ -130,11 +130,18 @@ def add_noise(nodes: LabelledNodes, sigma: float, generator: torch.Generator) ->
     return replace(nodes, xyz=nodes.xyz + sigma * noise)
 
 
+def _count(share: float, n: int, generator: torch.Generator) -> int:
+    """``share * n`` rounded up or down at random (by its fraction), so every level means its share on average:
+    5 % of a maize plant's 5 side branches drops one a quarter of the time rather than never."""
+    x = share * n
+    return min(int(x) + int(float(torch.rand((), generator=generator, dtype=torch.float64)) < x - int(x)), n)
+
+
 def split_edges(nodes: LabelledNodes, share: float, generator: torch.Generator) -> LabelledNodes:
-    """Insert a midpoint node into a random ``share`` of the edges (new nodes go last; a midpoint belongs to the
-    branch of the edge's lower node, which the edge leads into)."""
+    """Insert a midpoint node into a random ``share`` of the edges (randomly rounded; new nodes go last; a midpoint
+    belongs to the branch of the edge's lower node, which the edge leads into)."""
     edges = np.nonzero(nodes.parent >= 0)[0]
-    k = round(share * len(edges))
+    k = _count(share, len(edges), generator)
     if k == 0:
         return nodes
     chosen = edges[torch.randperm(len(edges), generator=generator)[:k].numpy()]
@@ -148,10 +155,10 @@ def split_edges(nodes: LabelledNodes, share: float, generator: torch.Generator) 
 
 
 def drop_branches(nodes: LabelledNodes, share: float, generator: torch.Generator) -> LabelledNodes:
-    """Remove ``round(share * side branches)`` side branches, leaf-most first (module doc)."""
+    """Remove ``share`` of the side branches (randomly rounded), leaf-most first (module doc)."""
     bp = nodes.branch_parent
     side = [b for b in range(len(bp)) if bp[b] >= 0]
-    k = round(share * len(side))
+    k = _count(share, len(side), generator)
     if k == 0:
         return nodes
     kids = np.zeros(len(bp), dtype=np.int64)
@@ -346,8 +353,9 @@ def markdown(report: dict[str, Any]) -> list[str]:
              "(the registration alone; `.mat` trees only have this one). *P / R*: identity precision / recall of "
              "the registration, pooled over frames; *index P / R*: of the index-order correspondence; "
              "*distance / day*: the registered distance over the distance from that frame to its neighbouring "
-             "day (median over frames, max in brackets); *length*: the perturbed tree's total length over the "
-             "original's; *beats index*: share of frames whose registered distance is below the index-order one "
+             "day (median over frames, max in brackets); *branches*: the perturbed trees' (mean over frames); "
+             "*length*: the perturbed tree's total length over the original's; *beats index*: share of frames "
+             "whose registered distance is below the index-order one "
              f"(of those the perturbation moved). {res['frames_per_kind']} frame(s) per kind and source.", ""]
     for kind_of, unit in res["units"].items():
         rows = []
@@ -355,13 +363,13 @@ def markdown(report: dict[str, Any]) -> list[str]:
             for kind, v in kinds.items():
                 for mode, curves in v["curves"].items():
                     for pt in curves.get(kind_of, []):
-                        rows.append([src, mode, kind, f"{100 * pt['level']:g}", pt["frames"],
+                        rows.append([src, mode, kind, f"{100 * pt['level']:g}", pt["frames"], fmt(pt["branches_mean"]),
                                      f"{fmt(pt['precision'], percent=True)} / {fmt(pt['recall'], percent=True)}",
                                      f"{fmt(pt['index_precision'], percent=True)} / "
                                      f"{fmt(pt['index_recall'], percent=True)}",
                                      f"{fmt(pt['ratio']['median'])} ({fmt(pt['ratio']['max'])})",
                                      fmt(pt["length_ratio_mean"]), fmt(pt["improved"], percent=True)])
         lines += [f"**{kind_of}** (level: {unit})", "",
-                  *md_table(["source", "mode", "kind", "level", "frames", "P / R", "index P / R", "distance / day",
-                             "length", "beats index"], rows), ""]
+                  *md_table(["source", "mode", "kind", "level", "frames", "branches", "P / R", "index P / R",
+                             "distance / day", "length", "beats index"], rows), ""]
     return lines[:-1]
