@@ -40,7 +40,7 @@ from ..data.truth import IdentityScores, identity_scores
 from .data import EvalData, EvalSettings, Plant4D
 from .stats import fmt, md_table, summary
 
-__all__ = ["markdown", "plant_pairs", "pooled", "run"]
+__all__ = ["markdown", "plant_pairs", "pooled", "run", "true_warp", "warp_mae"]
 
 CROSS_AT = (1 / 3, 2 / 3, 1.0)  # normalised times of the cross-plant comparisons
 ORACLE_COMPONENTS = 5  # principal directions of the oracle layout's trajectories (as benchmark_growth_clocks)
@@ -91,6 +91,17 @@ def _clock(plant: Plant4D) -> _Clock:
     return _Clock(torch.tensor(gw["grid"], dtype=torch.float64), torch.tensor(gw["values"], dtype=torch.float64))
 
 
+def true_warp(a: Plant4D, b: Plant4D, t: Tensor) -> Tensor:
+    """The true time warp of plant ``b`` onto ``a`` at normalised times ``t``, from their recorded clocks
+    (:func:`~torch4dtree.data.relative_warp`: ``b`` at ``xi(t)`` is as developed as ``a`` at ``t``)."""
+    return relative_warp(_clock(a), _clock(b), t)  # type: ignore[arg-type]
+
+
+def warp_mae(warp: Tensor, true: Tensor) -> float:
+    """Mean absolute error of a warp sampled on the normalised grid (the grid's points weigh equally)."""
+    return float((warp.double() - true.double()).abs().mean())
+
+
 def _pair_matches(identity: Tensor, j: int) -> list[tuple[int, int]]:
     """The matches of frame ``j`` onto ``j + 1`` in a within-sequence identity table ``(n, S)``."""
     a, b = identity[j].tolist(), identity[j + 1].tolist()
@@ -103,16 +114,44 @@ def _frame_labels(plant: Plant4D) -> list[list[int]]:
     return [lab[a:b] for a, b in zip(ptr[:-1], ptr[1:])]
 
 
-def _within(plant: Plant4D, settings: EvalSettings, progress: bool) -> tuple[Any, list[IdentityScores], Any]:
+def _within(plant: Plant4D, lambdas: Sequence[float], progress: bool) -> tuple[Any, list[IdentityScores], Any]:
     """One plant's within-sequence registration, its consecutive-pair scores and its chained identity accuracy."""
     from ..temporal.within import identity_accuracy, register_sequence
 
     seq = plant.sequence.to(torch.float64)
-    aligned = register_sequence(seq, lambdas=settings.lambdas, rotation="none", progress=progress)
+    aligned = register_sequence(seq, lambdas=lambdas, rotation="none", progress=progress)
     labels = _frame_labels(plant)
     ident = aligned.identity.cpu()
     scores = [identity_scores(_pair_matches(ident, j), labels[j], labels[j + 1]) for j in range(len(seq) - 1)]
     return aligned, scores, identity_accuracy(aligned, seq.frames.label)
+
+
+def _within_rows(plants: Sequence[Plant4D], lambdas: Sequence[float], progress: bool
+                 ) -> tuple[dict[int, Any], dict[str, Any]]:
+    """Every plant's within-sequence registration (by index) and their pooled scores."""
+    aligned: dict[int, Any] = {}
+    scores: list[IdentityScores] = []
+    chained, per_pair = [], []
+    for i, plant in enumerate(plants):
+        if len(plant.sequence) < 2:
+            continue
+        aligned[i], sc, acc = _within(plant, lambdas, progress)
+        scores += sc
+        chained.append(acc.sequence)
+        per_pair.append(float(acc.per_pair.mean()))
+    return aligned, {**pooled(scores), "lambdas": [float(x) for x in lambdas], "chained_sequence": summary(chained),
+                     "chained_pair_mean": summary(per_pair)}
+
+
+def default_within_lambdas(lambdas: Sequence[float]) -> tuple[float, float, float]:
+    """``lambdas`` with the ``lp`` of :func:`~torch4dtree.temporal.register_sequence`'s default (tuned for
+    identities between consecutive frames; the evaluation's ``lambdas`` may use another)."""
+    import inspect
+
+    from ..temporal.within import register_sequence
+
+    lp = float(inspect.signature(register_sequence).parameters["lambdas"].default[2])
+    return float(lambdas[0]), float(lambdas[1]), lp
 
 
 def _nearest_frame(plant: Plant4D, t: float) -> int:
@@ -154,12 +193,9 @@ def _growth_warp(a: Plant4D, b: Plant4D, al_a: Any, al_b: Any, settings: EvalSet
 
     reg = register4d(al_a, al_b, settings.lambdas, rotation, n_t=settings.n_t)
     grid = reg.times.double()
-    true = relative_warp(_clock(a), _clock(b), grid)  # type: ignore[arg-type]
-    oracle = _oracle_warp(a, b, settings)
-    return {"reference": a.name, "moving": b.name,
-            "warp_mae": float((reg.warp.double() - true).abs().mean()),
-            "oracle_mae": float((oracle.double() - true).abs().mean()),
-            "identity_mae": float((grid - true).abs().mean()),
+    true = true_warp(a, b, grid)
+    return {"reference": a.name, "moving": b.name, "warp_mae": warp_mae(reg.warp, true),
+            "oracle_mae": warp_mae(_oracle_warp(a, b, settings), true), "identity_mae": warp_mae(grid, true),
             "distance_before": reg.distance_before, "distance_spatial": reg.distance_after_spatial,
             "distance_temporal": reg.distance_after_temporal, "kept_index_order": bool(reg.kept_index_order)}
 
@@ -168,18 +204,12 @@ def _kind(plants: list[Plant4D], settings: EvalSettings, progress: bool, timings
           ) -> dict[str, Any]:
     rotation = "so3" if settings.rotation == "so3" else "vertical"
     pairs = plant_pairs(len(plants), settings.quick)
-    used = sorted({i for p in pairs for i in p}) if settings.quick else list(range(len(plants)))
+    used = plants[:2] if settings.quick else plants  # quick: the one pair's plants
     t0 = time.perf_counter()
-    aligned: dict[int, Any] = {}
-    within_scores: list[IdentityScores] = []
-    chained, per_pair = [], []
-    for i in used:
-        if len(plants[i].sequence) < 2:
-            continue
-        aligned[i], scores, acc = _within(plants[i], settings, progress)
-        within_scores += scores
-        chained.append(acc.sequence)
-        per_pair.append(float(acc.per_pair.mean()))
+    aligned, within = _within_rows(used, settings.lambdas, progress)
+    default_lam = default_within_lambdas(settings.lambdas)
+    # the within-sequence default lp, beside the evaluation's (identities only: cheap, and telling when they differ)
+    within_default = _within_rows(used, default_lam, progress)[1] if default_lam != tuple(settings.lambdas) else None
     timings["within"] += time.perf_counter() - t0
     t0 = time.perf_counter()
     at = (1.0,) if settings.quick else CROSS_AT
@@ -191,9 +221,7 @@ def _kind(plants: list[Plant4D], settings: EvalSettings, progress: bool, timings
              if i in aligned and k in aligned]
     timings["growth_warp"] += time.perf_counter() - t0
     return {
-        "plants": len(used),
-        "within": {**pooled(within_scores), "chained_sequence": summary(chained),
-                   "chained_pair_mean": summary(per_pair)},
+        "plants": len(used), "within": within, "within_default_lp": within_default,
         "cross": {**pooled(sc for *_, sc in cross_rows), "rotation": rotation, "at": list(at),
                   "per_time": {f"{t:.3g}": pooled(row[-1] for row in cross_rows if row[2] == t) for t in at},
                   "rows": [{"moving": m, "reference": r, "time": t, "frame_moving": ja, "frame_reference": jb,
@@ -223,6 +251,20 @@ def _pr(d: dict[str, Any]) -> str:
     return f"{fmt(d['precision'], percent=True)} / {fmt(d['recall'], percent=True)} ({d['pairs']})"
 
 
+def _chained(w: dict[str, Any]) -> str:
+    return f"{fmt(w['chained_sequence']['mean'], percent=True)}, {fmt(w['chained_sequence']['min'], percent=True)}"
+
+
+def _within_table_rows(kind: str, v: dict[str, Any]) -> list[list[Any]]:
+    """The evaluation's lambdas (with the cross-plant scores), then the within-sequence default lp if it differs."""
+    w, wd = v["within"], v.get("within_default_lp")
+    rows = [[kind, v["plants"], ", ".join(f"{x:g}" for x in w["lambdas"]), _pr(w), _chained(w), _pr(v["cross"])]]
+    if wd:
+        rows.append([kind, v["plants"], ", ".join(f"{x:g}" for x in wd["lambdas"]) + " (register_sequence default)",
+                     _pr(wd), _chained(wd), "-"])
+    return rows
+
+
 def markdown(report: dict[str, Any]) -> list[str]:
     """The section's lines: branch-correspondence accuracy and growth-warp recovery per kind."""
     res = report.get("synthetic")
@@ -233,14 +275,13 @@ def markdown(report: dict[str, Any]) -> list[str]:
              "Branch correspondences scored against the organ labels (spurs left out): precision = share of matched "
              "branch pairs holding the same organ, recall = share of the organs present in both trees whose "
              "branches were matched together, pooled over pairs (pairs in brackets). *Within*: consecutive frames "
-             "of each plant (within-sequence registration, frame j onto j + 1); *chained*: share of all branches "
-             "of a plant sitting in their organ's slot after chaining; *across*: two plants at the same normalised "
-             "time (about 1/3, 2/3 and the end), rotation about the vertical.", "",
-             *md_table(["kind", "plants", "within P / R", "chained (mean, min)", "across P / R"],
-                       [[k, v["plants"], _pr(v["within"]),
-                         f"{fmt(v['within']['chained_sequence']['mean'], percent=True)}, "
-                         f"{fmt(v['within']['chained_sequence']['min'], percent=True)}",
-                         _pr(v["cross"])] for k, v in kinds.items()]), "",
+             "of each plant (within-sequence registration, frame j onto j + 1, with the evaluation's lambdas "
+             "(lm, ls, lp; lp relative to the plant's size) and with register_sequence's default lp); *chained*: "
+             "share of all branches of a plant sitting in their organ's slot after chaining; *across*: two plants "
+             "at the same normalised time (about 1/3, 2/3 and the end), rotation about the vertical, the "
+             "evaluation's lambdas.", "",
+             *md_table(["kind", "plants", "lambdas", "within P / R", "chained (mean, min)", "across P / R"],
+                       [row for k, v in kinds.items() for row in _within_table_rows(k, v)]), "",
              "Growth-warp recovery: the spatiotemporal registration of pairs of plants (register4d) against the "
              "true relative clock h_b^-1(h_a(t)), mean absolute error on the normalised grid (mean over pairs, "
              "max in brackets); *oracle*: trajectories in a layout by ground-truth organ (temporal step alone); "
