@@ -37,9 +37,12 @@ of the original branches still present that were matched to themselves).
 and of the index-order correspondence (children matched by order of ``s``; the baseline), the registered
 distance relative to the plant's scan-to-scan distance (the next frame, or the previous one for a last frame,
 registered onto the frame; so ``distance / day`` = 1 means the perturbation moved the tree as far as the growth
-between two scans), and the share of frames where the registered distance is below the index-order one (among
-frames the perturbation moved by more than 1e-6 of that). Level 0 is the original registered onto itself (once
-per mode). ``FRAMES_PER_KIND`` frames of every kind of every source are sampled (plants in random order by
+between two scans), and the share of frames where the registered distance is strictly below the index-order
+one (among frames the perturbation moved by more than 1e-6 of that; the registration is never above it, and
+equal where index order already gives the best correspondence, e.g. when the dropped branch was a last
+sibling). Level 0 is the original registered onto itself (once per mode).
+
+**Sampling**: ``FRAMES_PER_KIND`` frames of every kind of every source (plants in random order by
 ``settings.seed``, frames at normalised times ``1/n, 2/n, ..., 1``: later frames have more branches); one random
 draw per frame and level, from a stream per source and kind. ``quick``: one frame, two levels.
 """
@@ -366,7 +369,7 @@ def markdown(report: dict[str, Any]) -> list[str]:
              "*distance / day*: the registered distance over the distance between that frame and the next scan "
              "of the plant (median over frames, max in brackets); *branches*: the perturbed trees' (mean over frames); "
              "*length*: the perturbed tree's total length over the original's; *beats index*: share of frames "
-             "whose registered distance is below the index-order one "
+             "whose registered distance is strictly below the index-order one (never above it) "
              f"(of those the perturbation moved). {res['frames_per_kind']} frame(s) per kind and source.", ""]
     for kind_of, unit in res["units"].items():
         rows = []
