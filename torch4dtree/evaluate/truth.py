@@ -29,7 +29,8 @@ are pooled over pairs (counts summed), as :func:`torch4dtree.bench.hierarchy.ide
 from __future__ import annotations
 
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Iterator, Sequence
+from contextlib import contextmanager
 from typing import Any, NamedTuple
 
 import torch
@@ -174,13 +175,28 @@ def _cross(a: Plant4D, b: Plant4D, at: Sequence[float], settings: EvalSettings, 
     return out
 
 
+@contextmanager
+def _deterministic() -> Iterator[None]:
+    """Deterministic torch kernels inside (restored after)."""
+    was, warn = torch.are_deterministic_algorithms_enabled(), torch.is_deterministic_algorithms_warn_only_enabled()
+    torch.use_deterministic_algorithms(True)
+    try:
+        yield
+    finally:
+        torch.use_deterministic_algorithms(was, warn_only=warn)
+
+
 def _oracle_warp(a: Plant4D, b: Plant4D, settings: EvalSettings) -> Tensor:
     """The temporal registration of ``b`` onto ``a`` in the ground-truth (organ label) layout."""
     from ..bench.temporal import _label_features, _pca_trajectories
     from ..temporal.registration import register_trajectories
 
     seqs = [a.sequence.to(torch.float64), b.sequence.to(torch.float64)]
-    feats = _label_features(seqs, seqs[0].frames.T)
+    # a label may name several branches of a frame (spurs, organs the rule split): _label_features writes them
+    # into one slot by an indexed assignment whose winner varies from run to run on several threads; the
+    # deterministic kernels make it the same every time (the oracle differed by up to 0.06 between two calls)
+    with _deterministic():
+        feats = _label_features(seqs, seqs[0].frames.T)
     k = min(ORACLE_COMPONENTS, sum(len(s) for s in seqs) - 1)
     ta, tb = _pca_trajectories(feats, [s.times for s in seqs], k, settings.n_t)
     return register_trajectories(ta, tb).warp
