@@ -37,7 +37,7 @@ def test_metrics_of_separable_sets() -> None:
 
 def test_metrics_of_a_memorised_set() -> None:
     m = _metrics([5.0, 0.0, 7.0], [0.0, 5.0, 7.0])  # the references themselves, in another order
-    assert m == {"mmd": 0.0, "cov": 1.0, "nna": 0.0}
+    assert m == {"mmd": 0.0, "cov": 1.0, "nna": 0.0, "nna_samples": 0.0, "nna_real": 0.0}
 
 
 def test_metrics_by_hand() -> None:
@@ -45,11 +45,15 @@ def test_metrics_by_hand() -> None:
     # S11 -> R10 (wrong), S12.5 -> S11 (right): 2 of 6. Samples' nearest references: 1.5, 10, 10 -> 2 of 3.
     m = _metrics([2.0, 11.0, 12.5], [0.0, 1.5, 10.0])
     assert m["nna"] == pytest.approx(1 / 3)
+    assert m["nna_samples"] == pytest.approx(1 / 3) and m["nna_real"] == pytest.approx(1 / 3)
     assert m["cov"] == pytest.approx(2 / 3)
     assert m["mmd"] == pytest.approx((2.0 + 0.5 + 1.0) / 3)
     # two pairs of the same set and two mixed pairs: exactly half right
     m = _metrics([10.0, 11.0, 20.5, 30.5], [0.0, 1.0, 20.0, 30.0])
     assert m["nna"] == 0.5
+    # a collapsed generator between real plants that are far apart: 50 % by samples 100 % / real 0 %
+    m = _metrics([5.0, 5.0], [0.0, 10.0])
+    assert (m["nna"], m["nna_samples"], m["nna_real"], m["cov"]) == (0.5, 1.0, 0.0, 0.5)
 
 
 def test_novelty_threshold() -> None:
@@ -124,9 +128,11 @@ def test_metrics_finite_and_in_range(report: dict) -> None:
             assert 0.0 <= m[key]["min"] <= m[key]["max"] <= 1.0, (name, key)
     # the collapsed generator: every draw is the same, and its samples are each other's nearest neighbours
     mean = r["generators"]["mean"]
-    assert mean["mmd"]["std"] == 0.0 and mean["cov"]["max"] == 0.5 and mean["nna"]["min"] >= 0.5
+    assert mean["mmd"]["std"] == 0.0 and mean["cov"]["max"] == 0.5 and mean["nna_samples"]["min"] == 1.0
     for key in ("model", "last", "mean"):
         assert math.isfinite(r["forecast"][key]["mean"]) and r["forecast"][key]["n"] == 2
+        # the layout's distance adds what the tree PCA misses: never below the coordinates' distance
+        assert r["forecast"][key]["mean"] >= r["forecast"]["tree_pca"][key]["mean"] - 1e-9
     for key, s in r["reconstruction"].items():
         assert math.isfinite(s["mean"]), key
     assert 0.0 <= r["reconstruction"]["outside_share"]["max"] < 1.0

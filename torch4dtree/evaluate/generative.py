@@ -88,6 +88,8 @@ QUICK_N_T = 12
 # the authors' synthesis script: one uniform scalar in [-0.5, 0.5] on the first three standardised modes
 PAPER_SCALAR_MODES, PAPER_SCALAR_HALF_RANGE = 3, 0.5
 GENERATORS = ("model", "memorise", "paper_scalar", "mean")
+METRICS = ("mmd", "cov", "nna")
+PER_DRAW = (*METRICS, "nna_samples", "nna_real")
 GENERATOR_WHAT = {
     "model": "the model's sampler (truncated normal, c = 3)",
     "memorise": "a training plant at random",
@@ -132,7 +134,9 @@ def distance_matrix(x: Tensor, y: Tensor | None = None) -> Tensor:
 
 def set_metrics(d_ss: Tensor, d_sr: Tensor, d_rr: Tensor) -> dict[str, float]:
     """MMD, COV and 1-NNA (module doc) of samples ``S`` against references ``R`` from their distances:
-    ``d_ss (S, S)``, ``d_sr (S, R)``, ``d_rr (R, R)``. Ties go to the lower index, samples before references."""
+    ``d_ss (S, S)``, ``d_sr (S, R)``, ``d_rr (R, R)``. Ties go to the lower index, samples before references.
+    ``nna_samples`` / ``nna_real``: the classifier's accuracy on each set (1-NNA is their mean when ``S = R``): a
+    collapsed generator gets 100 % / 0 % when the real plants are farther from each other than from its samples."""
     S, R = d_sr.shape
     if S == 0 or R == 0:
         raise ValueError(f"need samples and references, got {S} and {R}")
@@ -141,8 +145,9 @@ def set_metrics(d_ss: Tensor, d_sr: Tensor, d_rr: Tensor) -> dict[str, float]:
     full = torch.cat([torch.cat([d_ss, d_sr], 1), torch.cat([d_sr.T, d_rr], 1)], 0).clone()
     full.fill_diagonal_(math.inf)  # leave-one-out
     is_real = torch.arange(S + R) >= S
-    nna = float((is_real[full.argmin(1)] == is_real).double().mean())
-    return {"mmd": mmd, "cov": cov, "nna": nna}
+    right = (is_real[full.argmin(1)] == is_real).double()
+    return {"mmd": mmd, "cov": cov, "nna": float(right.mean()), "nna_samples": float(right[:S].mean()),
+            "nna_real": float(right[S:].mean())}
 
 
 def novelty(d_st: Tensor, d_tt: Tensor, divisor: float = NOVELTY_DIVISOR) -> dict[str, float]:
@@ -264,8 +269,11 @@ def _forecast(model: FourDTreeModel, plant: Plant4D, frames: Tensor) -> dict[str
     u = ((seq.times[half:] - seq.times[0]).to(torch.float64) / float(model.duration)).clamp(0, 1)
     guesses = {"model": _pad(f.trajectory.to(truth), r), "last": frames[half - 1].expand_as(truth),
                "mean": _pad(time_warp_trajectory(model.mean.trajectory, u.to(model.mean.trajectory)).to(truth), r)}
+    k = model.population.k
     errs = {key: float((x - truth).norm(dim=-1).mean()) for key, x in guesses.items()}
-    return {**errs, "observed": half, "forecast": n - half, "rate": float(f.rate), "seconds": seconds}
+    pca_errs = {key: float((x[..., :k] - truth[..., :k]).norm(dim=-1).mean()) for key, x in guesses.items()}
+    return {**errs, "tree_pca": pca_errs, "observed": half, "forecast": n - half, "rate": float(f.rate),
+            "seconds": seconds}
 
 
 def _fold(train: list[Plant4D], held: list[Plant4D], settings: EvalSettings, gen: torch.Generator
@@ -298,7 +306,7 @@ def _fold(train: list[Plant4D], held: list[Plant4D], settings: EvalSettings, gen
         if name in ("model", "paper_scalar"):
             novel[name] = novelty(distance_matrix(pool[:NOVELTY_SAMPLES], t_alpha), d_tt)
     metric_seconds = time.perf_counter() - t0
-    sanity = set_metrics(d_tt, d_tt, d_tt)  # the training set memorised, against itself
+    sanity = {m: v for m, v in set_metrics(d_tt, d_tt, d_tt).items() if m in METRICS}  # training set memorised
 
     # reconstruction through the model, beside the mean and the nearest training plant
     mean = _pad(model.mean.trajectory.detach(), r)
@@ -340,6 +348,7 @@ def _fold(train: list[Plant4D], held: list[Plant4D], settings: EvalSettings, gen
         "per_draw": per_draw, "novelty": novel, "sanity": sanity, "plants": plants,
         "training_reconstruction": [float(x) for x in recon_t], "training_to_mean": [float(x) for x in mean_t],
         "training_nn": [float(x) for x in nn_t],
+        "held_out_pairs": [float(d_rr[i, j]) for i in range(h) for j in range(i + 1, h)],
         "seconds": {"fit": fit_seconds, "mean": float(model.report_["seconds"]["mean"]),
                     "encode_per_plant": encode_seconds, "metrics": metric_seconds,
                     "sample_per_plant": sample_seconds, "decode_per_plant": decode_seconds},
@@ -366,18 +375,19 @@ def _kind(plants: list[Plant4D], settings: EvalSettings, offset: int, progress: 
         done.append(_fold([p for i, p in enumerate(plants) if i not in held], [plants[i] for i in f], settings, gen))
     held_plants = [p for d in done for p in d["plants"]]
     fc = [p["forecast"] for p in held_plants if p["forecast"] is not None]
-    gens = {name: {m: summary(r[m] for d in done for r in d["per_draw"][name]) for m in ("mmd", "cov", "nna")}
+    gens = {name: {m: summary(r[m] for d in done for r in d["per_draw"][name]) for m in PER_DRAW}
             for name in GENERATORS}
     return {
         "plants": len(plants), "folds": [{k: v for k, v in d.items() if k != "per_draw"} | {
-            "generators": {name: {m: summary(r[m] for r in d["per_draw"][name])["mean"] for m in ("mmd", "cov", "nna")}
+            "generators": {name: {m: summary(r[m] for r in d["per_draw"][name])["mean"] for m in PER_DRAW}
                            for name in GENERATORS}} for d in done],
         "generators": gens,
         "novelty": {name: {k: summary(d["novelty"][name][k] for d in done)["mean"]
                            for k in ("threshold", "share_closer", "nearest_min", "nearest_median")}
                     for name in ("model", "paper_scalar")},
         "sanity": {m: max(d["sanity"][m] for d in done) if m != "cov" else min(d["sanity"][m] for d in done)
-                   for m in ("mmd", "cov", "nna")},
+                   for m in METRICS},
+        "held_out_pairs": summary(x for d in done for x in d["held_out_pairs"]),
         "reconstruction": {
             "held_out": summary(p["reconstruction"] for p in held_plants),
             "held_out_to_mean": summary(p["to_mean"] for p in held_plants),
@@ -390,6 +400,7 @@ def _kind(plants: list[Plant4D], settings: EvalSettings, offset: int, progress: 
             "off_tree_space_share": summary(p["off_tree_space_share"] for p in held_plants),
         },
         "forecast": {**{k: summary(f[k] for f in fc) for k in ("model", "last", "mean")},
+                     "tree_pca": {k: summary(f["tree_pca"][k] for f in fc) for k in ("model", "last", "mean")},
                      "plants": len(fc), "wins_vs_last": sum(f["model"] < f["last"] for f in fc),
                      "wins_vs_mean": sum(f["model"] < f["mean"] for f in fc)},
     }
@@ -432,28 +443,30 @@ def run(datas: dict[str, EvalData], settings: EvalSettings, progress: bool = Fal
 
 # ----------------------------------------------------------------------------- report
 def _pm(s: dict[str, float], percent: bool = False) -> str:
-    return f"{fmt(s['mean'], percent=percent)} ± {fmt(s['std'], percent=percent)}"
+    d = 2 if percent else 3
+    return f"{fmt(s['mean'], d, percent)} ± {fmt(s['std'], d, percent)}"
 
 
 def _verdicts(r: dict[str, Any]) -> list[str]:
-    """Plain sentences where the model loses to a baseline."""
+    """Plain sentences where the model loses to a baseline (on the means)."""
     g = r["generators"]
     out = []
     keys = {"mmd": ("MMD", lambda x: x), "cov": ("COV", lambda x: -x), "nna": ("1-NNA", lambda x: abs(x - 0.5))}
     for m, (label, badness) in keys.items():
         ours = badness(g["model"][m]["mean"])
-        worse = [b for b in GENERATORS[1:] if badness(g[b][m]["mean"]) < ours]
-        if worse:
-            out.append(f"{label}: the model is beaten by {', '.join(worse)}.")
+        better = [b for b in GENERATORS[1:] if badness(g[b][m]["mean"]) < ours]
+        if better:
+            out.append(f"{label}: the model is beaten by {', '.join(better)}.")
     rec = r["reconstruction"]
     if rec["held_out"]["mean"] > rec["held_out_nearest_training"]["mean"]:
         out.append("Reconstruction: held-out plants are farther from their reconstruction than from the nearest "
                    "training plant.")
     f = r["forecast"]
     if f["plants"]:
-        for b in ("last", "mean"):
-            if f["model"]["mean"] >= f[b]["mean"]:
-                out.append(f"Forecast: the model's mean error is not below the {b!r} baseline's.")
+        for b, what in (("last", "the last observed frame"), ("mean", "the 4D mean")):
+            for space, label in ((f, "layout"), (f["tree_pca"], "tree-PCA coordinates")):
+                if space["model"]["mean"] >= space[b]["mean"]:
+                    out.append(f"Forecast ({label}): the model's mean error is not below {what}'s.")
     return out or ["The model is not beaten by any baseline on these means."]
 
 
@@ -469,8 +482,8 @@ def markdown(report: dict[str, Any]) -> list[str]:
                                          else "") + ". Each fold is held out once; the model is fit on the other "
               "plants. Ground metric: the 4D distance after temporal registration of trajectories in each fold's "
               "slot layout (tree PCA plus what it misses of the held-out frames). Each draw has as many samples "
-              "as held-out plants; MMD lower is better, COV higher, 1-NNA ideally 50 %. With a handful of plants "
-              "these are coarse checks, not a ranking.", ""]
+              "as held-out plants; MMD lower is better, COV higher, 1-NNA ideally 50 % (its accuracy on samples / "
+              "on real plants beside it). With a handful of plants these are coarse checks, not a ranking.", ""]
     for kind, r in g["kinds"].items():
         lines += [f"### {kind}", ""]
         if "skipped" in r:
@@ -480,17 +493,22 @@ def markdown(report: dict[str, Any]) -> list[str]:
         lines += [f"{r['plants']} plants, {len(folds)} fold(s): " + "; ".join(
             f"{len(f['held_out'])} held out / {len(f['train'])} fit, {f['modes']} mode(s), {f['draws']} draws"
             for f in folds) + ".", ""]
-        lines += md_table(["generator", "MMD", "COV", "1-NNA", "what"],
-                          [[name, _pm(r["generators"][name]["mmd"]), _pm(r["generators"][name]["cov"], True),
-                            _pm(r["generators"][name]["nna"], True), g["generators"][name]] for name in GENERATORS])
-        s = r["sanity"]
-        nv = r["novelty"]
-        lines += ["", f"Sanity (training set memorised, against itself): MMD {fmt(s['mmd'])}, COV "
-                  f"{fmt(s['cov'], percent=True)}, 1-NNA {fmt(s['nna'], percent=True)} (must be 0, 100 %, 0 %). "
+        gs = r["generators"]
+        lines += md_table(["generator", "MMD", "COV", "1-NNA", "1-NNA samples / real", "what"],
+                          [[name, _pm(gs[name]["mmd"]), _pm(gs[name]["cov"], True), _pm(gs[name]["nna"], True),
+                            f"{fmt(gs[name]['nna_samples']['mean'], 2, True)} / "
+                            f"{fmt(gs[name]['nna_real']['mean'], 2, True)}", g["generators"][name]]
+                           for name in GENERATORS])
+        s, nv, rec = r["sanity"], r["novelty"], r["reconstruction"]
+        lines += ["", f"Held-out plants are {_pm(r['held_out_pairs'])} apart and {_pm(rec['held_out_to_mean'])} "
+                  "from the 4D mean: where the first is larger, a generator that stays near the mean makes every "
+                  "real plant's nearest neighbour a sample and reaches 1-NNA 50 % by collapse (samples 100 % / "
+                  "real 0 %).",
+                  "", f"Sanity (training set memorised, against itself): MMD {fmt(s['mmd'])}, COV "
+                  f"{fmt(s['cov'], 2, True)}, 1-NNA {fmt(s['nna'], 2, True)} (must be 0, 100 %, 0 %). "
                   "Novelty (share of samples closer to a training plant than the median training nearest-neighbour "
-                  "distance / 4): " + ", ".join(f"{k} {fmt(v['share_closer'], percent=True)} (threshold "
+                  "distance / 4): " + ", ".join(f"{k} {fmt(v['share_closer'], 2, True)} (threshold "
                                                 f"{fmt(v['threshold'])})" for k, v in nv.items()) + ".", ""]
-        rec = r["reconstruction"]
         lines += md_table(["reconstruction (4D distance)", "held out", "training"],
                           [["through the model", _pm(rec["held_out"]), _pm(rec["training"])],
                            ["the 4D mean alone", _pm(rec["held_out_to_mean"]), _pm(rec["training_to_mean"])],
@@ -502,10 +520,14 @@ def markdown(report: dict[str, Any]) -> list[str]:
                   "spread about the tree mean.", ""]
         f = r["forecast"]
         if f["plants"]:
-            lines += md_table(["forecast (second half of the frames)", "mean tree distance", "model wins"],
-                              [["model", _pm(f["model"]), "-"],
-                               ["last observed frame stays", _pm(f["last"]), f"{f['wins_vs_last']} / {f['plants']}"],
-                               ["4D mean at the same age", _pm(f["mean"]), f"{f['wins_vs_mean']} / {f['plants']}"]])
+            fp = f["tree_pca"]
+            lines += md_table(["forecast (second half of the frames)", "tree distance in the layout",
+                               "in tree-PCA coordinates", "model wins (layout)"],
+                              [["model", _pm(f["model"]), _pm(fp["model"]), "-"],
+                               ["last observed frame stays", _pm(f["last"]), _pm(fp["last"]),
+                                f"{f['wins_vs_last']} / {f['plants']}"],
+                               ["4D mean at the same age", _pm(f["mean"]), _pm(fp["mean"]),
+                                f"{f['wins_vs_mean']} / {f['plants']}"]])
             lines.append("")
         lines += ["**Where the model loses:** " + " ".join(_verdicts(r)), ""]
     return lines
