@@ -1,0 +1,153 @@
+"""The generative-model section of ``torch4dtree evaluate`` (evaluate/generative.py): metrics on constructed cases,
+the ground metric, the split, and one quick run on a tiny synthetic dataset (about 20 s)."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import pytest
+import torch
+
+from torch4dtree.evaluate import EvalSettings, load_eval_data
+from torch4dtree.evaluate import generative as gen
+from torch4dtree.evaluate.run import dumps
+from torch4dtree.temporal import register_trajectories
+
+
+def _line(points: list[float]) -> torch.Tensor:
+    return torch.tensor(points, dtype=torch.float64)
+
+
+def _metrics(samples: list[float], refs: list[float]) -> dict[str, float]:
+    """set_metrics of points on a line (distance |x - y|)."""
+    s, r = _line(samples), _line(refs)
+    return gen.set_metrics((s[:, None] - s).abs(), (s[:, None] - r).abs(), (r[:, None] - r).abs())
+
+
+# ----------------------------------------------------------------------------- metrics on constructed cases
+
+
+def test_metrics_of_separable_sets() -> None:
+    m = _metrics([10.0, 11.0], [0.0, 1.0])
+    assert m["nna"] == 1.0  # every point's nearest neighbour is of its own set
+    assert m["mmd"] == pytest.approx(9.5)  # (10 + 9) / 2
+    assert m["cov"] == 0.5  # both samples are nearest to the reference at 1
+
+
+def test_metrics_of_a_memorised_set() -> None:
+    m = _metrics([5.0, 0.0, 7.0], [0.0, 5.0, 7.0])  # the references themselves, in another order
+    assert m == {"mmd": 0.0, "cov": 1.0, "nna": 0.0, "nna_samples": 0.0, "nna_real": 0.0}
+
+
+def test_metrics_by_hand() -> None:
+    # R = {0, 1.5, 10}, S = {2, 11, 12.5}: nearest neighbours R0 -> R1.5 (right), R1.5 -> S2, R10 -> S11, S2 -> R1.5,
+    # S11 -> R10 (wrong), S12.5 -> S11 (right): 2 of 6. Samples' nearest references: 1.5, 10, 10 -> 2 of 3.
+    m = _metrics([2.0, 11.0, 12.5], [0.0, 1.5, 10.0])
+    assert m["nna"] == pytest.approx(1 / 3)
+    assert m["nna_samples"] == pytest.approx(1 / 3) and m["nna_real"] == pytest.approx(1 / 3)
+    assert m["cov"] == pytest.approx(2 / 3)
+    assert m["mmd"] == pytest.approx((2.0 + 0.5 + 1.0) / 3)
+    # two pairs of the same set and two mixed pairs: exactly half right
+    m = _metrics([10.0, 11.0, 20.5, 30.5], [0.0, 1.0, 20.0, 30.0])
+    assert m["nna"] == 0.5
+    # a collapsed generator between real plants that are far apart: 50 % by samples 100 % / real 0 %
+    m = _metrics([5.0, 5.0], [0.0, 10.0])
+    assert (m["nna"], m["nna_samples"], m["nna_real"], m["cov"]) == (0.5, 1.0, 0.0, 0.5)
+
+
+def test_novelty_threshold() -> None:
+    t = _line([0.0, 4.0, 10.0])  # training nearest neighbours 4, 4, 6: median 4, threshold 1
+    s = _line([0.5, 7.0, 12.0])
+    n = gen.novelty((s[:, None] - t).abs(), (t[:, None] - t).abs())
+    assert n["threshold"] == 1.0 and n["share_closer"] == pytest.approx(1 / 3) and n["nearest_min"] == 0.5
+
+
+def test_folds_cover_every_plant_once() -> None:
+    for n in (4, 5, 7, 20):
+        folds = gen.folds_of(n, torch.Generator().manual_seed(3))
+        assert sorted(i for f in folds for i in f) == list(range(n))
+        assert all(len(f) >= 2 and n - len(f) >= 2 for f in folds)
+        assert len(folds) == min(n // 2, gen.MAX_FOLDS)
+        assert folds == gen.folds_of(n, torch.Generator().manual_seed(3))
+    assert gen.folds_of(3, torch.Generator()) == []
+
+
+def test_ground_metric_is_symmetric_and_the_better_direction() -> None:
+    g = torch.Generator().manual_seed(0)
+    t = torch.linspace(0, 1, 16, dtype=torch.float64)[None, :, None]
+    a = torch.randn(5, 1, 3, generator=g, dtype=torch.float64) * torch.sin(3 * t) + t
+    b = torch.randn(5, 1, 3, generator=g, dtype=torch.float64) * t.square()
+    d = gen.distance4d(a, b)
+    assert torch.allclose(d, gen.distance4d(b, a))
+    both = torch.minimum(register_trajectories(a, b).distance, register_trajectories(b, a).distance)
+    assert torch.allclose(d, both)
+    assert float(gen.distance4d(a, a).abs().max()) == 0.0 and bool((d > 0).all())
+    m = gen.distance_matrix(a)
+    assert torch.equal(m, m.T) and torch.equal(m.diagonal(), torch.zeros(5, dtype=torch.float64))
+    assert torch.allclose(gen.distance_matrix(a, b).diagonal(), d)
+
+
+# ----------------------------------------------------------------------------- the section on a tiny dataset
+
+
+@pytest.fixture(scope="module")
+def report(tmp_path_factory: pytest.TempPathFactory) -> dict:
+    from torch4dtree.data import synthetic_dataset, write_dataset
+
+    root = tmp_path_factory.mktemp("gen") / "tomato"
+    write_dataset(synthetic_dataset("tomato", plants=5, seed=0, n_frames=5), root)
+    datas = {"synthetic": load_eval_data(root, "synthetic", T=16)}
+    return gen.run(datas, EvalSettings(T=16, quick=True), False)
+
+
+def test_structure_and_timings(report: dict) -> None:
+    assert set(report) == {"generative", "timings"}
+    g = report["generative"]
+    assert g["source"] == "synthetic" and set(g["generators"]) == set(gen.GENERATORS)
+    r = g["kinds"]["tomato"]
+    assert r["plants"] == 5 and len(r["folds"]) == 1  # quick: one fold
+    fold = r["folds"][0]
+    assert len(fold["held_out"]) == 2 and len(fold["train"]) == 3 and not set(fold["held_out"]) & set(fold["train"])
+    assert set(r["generators"]) == set(gen.GENERATORS)
+    for stage in ("generative_fit", "generative_mean", "generative_sample", "generative_decode"):
+        t = report["timings"][stage]
+        assert set(t) == {"seconds", "paper_seconds", "what"} and t["seconds"] > 0
+    assert report["timings"]["generative_sample"]["paper_seconds"] == 0.0001
+    json.loads(dumps(report))  # JSON-safe
+    md = "\n".join(gen.markdown(report))
+    assert "### tomato" in md and "Where the model loses" in md and "1-NNA" in md
+
+
+def test_metrics_finite_and_in_range(report: dict) -> None:
+    r = report["generative"]["kinds"]["tomato"]
+    for name, m in r["generators"].items():
+        assert m["mmd"]["n"] == r["folds"][0]["draws"], name
+        assert math.isfinite(m["mmd"]["mean"]) and m["mmd"]["min"] >= 0, name
+        for key in ("cov", "nna"):
+            assert 0.0 <= m[key]["min"] <= m[key]["max"] <= 1.0, (name, key)
+    # the collapsed generator: every draw is the same, and its samples are each other's nearest neighbours
+    mean = r["generators"]["mean"]
+    assert mean["mmd"]["std"] == 0.0 and mean["cov"]["max"] == 0.5 and mean["nna_samples"]["min"] == 1.0
+    for key in ("model", "last", "mean"):
+        assert math.isfinite(r["forecast"][key]["mean"]) and r["forecast"][key]["n"] == 2
+        # the layout's distance adds what the tree PCA misses: never below the coordinates' distance
+        assert r["forecast"][key]["mean"] >= r["forecast"]["tree_pca"][key]["mean"] - 1e-9
+    for key, s in r["reconstruction"].items():
+        assert math.isfinite(s["mean"]), key
+    assert 0.0 <= r["reconstruction"]["outside_share"]["max"] < 1.0
+    assert 0.0 <= r["reconstruction"]["off_tree_space_share"]["max"] < 1.0
+
+
+def test_memorised_training_set_and_reconstruction(report: dict) -> None:
+    r = report["generative"]["kinds"]["tomato"]
+    # the training set memorised, against itself: every sample on a real plant
+    assert r["sanity"] == {"mmd": 0.0, "cov": 1.0, "nna": 0.0}
+    fold = r["folds"][0]
+    # projecting on the modes never moves a plant farther than the 4D mean is (the DP's tolerance aside)
+    for rec, mean in zip(fold["training_reconstruction"], fold["training_to_mean"]):
+        assert rec <= 1.02 * mean
+    for p in fold["plants"]:
+        assert p["reconstruction"] <= 1.02 * p["to_mean"], p["plant"]
+    # the training plants are nearly reconstructed (all their variance but the modes dropped), held-out ones not
+    assert max(fold["training_reconstruction"]) < min(p["reconstruction"] for p in fold["plants"])

@@ -1,0 +1,545 @@
+"""The generative model's quality (beyond the paper, which only shows pictures): held-out plants, baselines.
+
+Per kind of plant, the plants are split into folds; each fold is held out once and a :class:`FourDTreeModel` is fit
+on the others (``settings``: ``lambdas``, ``rotation``, ``n_t``). Everything is measured in that fold's model.
+
+**Ground metric.** Every 4D plant is a trajectory of coordinates in which Euclidean distances are the tree
+distances of the fold's slot layout, on the normalised time grid (``n_t``): the model's tree-PCA coefficients,
+extended by an orthonormal basis of what the tree PCA cannot express of the held-out frames. The extension matters:
+fit on 2-4 plants, the tree PCA spans few directions, and the held-out frames' projections on it alone sit much
+closer to the 4D mean than the plants are (5 synthetic tomatoes, 3 fit: held-out plants 7.4 from the mean
+projected, 12.7 in the layout, training plants 12.8; Pheno4D tomato: 77 % of the held-out frames' spread is off the
+tree PCA), which would reward generators that stay near the mean. Held-out plants are
+written in the layout by ``model.population.transform`` (their frames resampled on the grid, as the population
+does); samples are ``model.trajectories(z)`` and training plants the population's trajectories, both with zeros in
+the extension (the model cannot leave its tree PCA; training frames keep ``tree_variance`` of theirs). The distance
+of two trajectories is the **4D distance after temporal registration** (:func:`~torch4dtree.temporal.
+register_trajectories`, batched): both directions are registered and the smaller distance kept (each is an upper
+bound of the same quotient distance; the minimum is tighter and symmetric). Branches of a held-out plant that match
+no slot of the layout cannot be written in it and are dropped: their cost is reported (``outside``, the root mean
+square over frames of the tree distance they carry, as ``FourDTreeModel.score().outside``; ``outside_share``, their
+share of the frames' squared norm), as is the part off the tree PCA (``off_tree_space``, ``off_tree_space_share`` of
+the frames' squared spread about the tree mean).
+
+**Split.** A seeded permutation (``settings.generator``) of the plants of a kind is cut into ``min(N // 2, 3)``
+near-equal folds, so every plant is held out exactly once and every held-out set has at least 2 plants (COV and
+1-NNA are meaningless with one). ``quick``: only the fold with the largest training set. Kinds with fewer than 4
+plants are skipped. Pheno4D ``mat``: tomato 5 plants -> folds of 3 and 2 held out (training on 2 and 3), maize 4 ->
+2 and 2 (training on 2: one mode). With so few plants the numbers are a coarse sanity check: they can show a
+generator that collapses (the 4D mean), one that memorises, or samples that are far from every real plant; they
+cannot rank close generators (a held-out set of 2 gives COV in {0, 1/2, 1} per draw) and say nothing about
+plants unlike the 5 tomatoes / 4 maize. Only one source is evaluated: ``mat`` if present, else ``synthetic``,
+else ``swc`` (a second source would at least double the section's time, and the raw SWC skeletons are larger).
+
+**Generators** (each draw: as many samples as held-out plants, the usual equal-size protocol; ``DRAWS = 50`` draws
+per fold, 4 when ``quick``; metrics per draw, summarised over all draws of all folds):
+
+* ``model``: the model's sampler (independent truncated standard normal coefficients, ``c = 3``);
+* ``memorise``: a training plant at random (without replacement within a draw) - the memorising generator;
+* ``paper_scalar``: the authors' synthesis script: one scalar uniform in ``[-0.5, 0.5]`` shared by the first three
+  modes (standardised), the others at 0;
+* ``mean``: the 4D mean alone (a collapsed generator).
+
+**Metrics** (``S`` samples, ``R`` held-out plants, ``d`` the ground metric): MMD ``= mean_r min_s d(r, s)`` (lower
+is better: every real plant has a close sample); COV ``= |{argmin_r d(s, r)}| / |R|`` in ``[0, 1]`` (higher is
+better: samples spread over the real plants); 1-NNA = the leave-one-out accuracy of the 1-nearest-neighbour
+classifier of ``S u R`` into "sample" / "real" in ``[0, 1]`` (50 % ideal: indistinguishable; 100 %: separable; near
+0 %: each sample sits on a real plant - memorisation of the evaluated set), with its accuracy on each set: where the
+real plants are farther from each other than from the mean, a collapsed generator reaches 50 % as samples 100 % /
+real 0 %, so the report's verdicts rank 1-NNA by how far both accuracies are from 50 %. ``sanity``: the memorising
+generator evaluated against the training set itself must give MMD 0, COV 1, 1-NNA 0. ``novelty``: the share of
+samples closer to a training plant than the median nearest-neighbour distance between training plants divided by 4.
+
+**Reconstruction.** A held-out plant's tree-PCA trajectory, registered onto the 4D mean and projected on the modes,
+back to a trajectory (``encode -> decode`` in the tree space): its ground distance to the plant (so it includes the
+part off the tree PCA), beside the distance to the 4D mean (no modes) and to the nearest training plant
+(memorisation); the same for the training plants (fit error).
+
+**Forecast.** The first half (``n // 2`` frames) of each held-out plant is observed and the rest forecast at its
+frames' times (``model.forecast``). Error: the mean over forecast frames of the tree distance in the layout (the
+extended coordinates; not re-registered decoded skeletons, which would cost a tree registration per frame) between
+the forecast and the plant's frames as encoded from its whole sequence. Baselines: the last observed frame stays
+(in the same whole-sequence encoding as the truth, off-PCA part included, so the baseline pays no encoding noise)
+and the population's 4D mean at the same age (time since the first frame over the training plants' mean duration).
+The same errors in tree-PCA coordinates only (as ``tests/test_model.py``) are reported beside them.
+
+**Timings**: fit, the 4D mean (paper: 0.0006 s), samples per second from coefficients to trajectories (paper:
+0.0001 s a generated 4D plant, the authors' script times only that linear combination), decoding to skeletons.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any
+
+import torch
+from torch import Tensor
+
+from ..model import FourDTreeModel
+from ..temporal.registration import register_trajectories, time_warp_trajectory
+from ..temporal.trajectory import resample_trajectory
+from .data import EvalData, EvalSettings, Plant4D
+from .stats import fmt, md_table, summary
+
+__all__ = ["GENERATORS", "distance4d", "distance_matrix", "folds_of", "markdown", "novelty", "run", "set_metrics"]
+
+# generator streams of this section (settings.generator(offset)): split, then samples per fold
+SEED_OFFSET = 300
+MAX_FOLDS = 3
+DRAWS, QUICK_DRAWS = 50, 4
+QUICK_N_T = 12
+# the authors' synthesis script: one uniform scalar in [-0.5, 0.5] on the first three standardised modes
+PAPER_SCALAR_MODES, PAPER_SCALAR_HALF_RANGE = 3, 0.5
+GENERATORS = ("model", "memorise", "paper_scalar", "mean")
+METRICS = ("mmd", "cov", "nna")
+PER_DRAW = (*METRICS, "nna_samples", "nna_real")
+GENERATOR_WHAT = {
+    "model": "the model's sampler (truncated normal, c = 3)",
+    "memorise": "a training plant at random",
+    "paper_scalar": "the authors' script: one uniform scalar in [-0.5, 0.5] on the first 3 modes",
+    "mean": "the 4D mean alone",
+}
+NOVELTY_DIVISOR = 4.0
+NOVELTY_SAMPLES = 100  # per fold and generator: distances to every training plant
+RATE_BATCH, QUICK_RATE_BATCH = 10_000, 1_000
+DECODE_BATCH, QUICK_DECODE_BATCH = 8, 2
+PAPER_SECONDS = {"sample": 0.0001, "mean": 0.0006}
+CHUNK = 2048  # pairs per registration call (memory)
+
+
+# ----------------------------------------------------------------------------- ground metric
+def distance4d(a: Tensor, b: Tensor) -> Tensor:
+    """The ground metric (module doc) of pairs of trajectories ``a, b (P, n_t, k) -> (P,)``: 4D distance after
+    temporal registration, the smaller of the two directions."""
+    if a.shape != b.shape:
+        raise ValueError(f"trajectories must have one shape, got {tuple(a.shape)} and {tuple(b.shape)}")
+    out = []
+    for i in range(0, a.shape[0], CHUNK):
+        x, y = a[i:i + CHUNK].detach(), b[i:i + CHUNK].detach()
+        d = register_trajectories(torch.cat([x, y]), torch.cat([y, x])).distance  # both directions in one batch
+        out.append(torch.minimum(d[:len(x)], d[len(x):]))
+    return torch.cat(out) if out else a.new_zeros(0)
+
+
+def distance_matrix(x: Tensor, y: Tensor | None = None) -> Tensor:
+    """``(n, m)`` ground distances between trajectories ``x (n, n_t, k)`` and ``y (m, n_t, k)``; ``y=None``: the
+    symmetric matrix of ``x`` (each pair once, zero diagonal)."""
+    if y is None:
+        n = x.shape[0]
+        i, j = torch.triu_indices(n, n, 1)
+        out = x.new_zeros(n, n)
+        d = distance4d(x[i], x[j])
+        out[i, j], out[j, i] = d, d
+        return out
+    i, j = torch.meshgrid(torch.arange(x.shape[0]), torch.arange(y.shape[0]), indexing="ij")
+    return distance4d(x[i.reshape(-1)], y[j.reshape(-1)]).reshape(x.shape[0], y.shape[0])
+
+
+def set_metrics(d_ss: Tensor, d_sr: Tensor, d_rr: Tensor) -> dict[str, float]:
+    """MMD, COV and 1-NNA (module doc) of samples ``S`` against references ``R`` from their distances:
+    ``d_ss (S, S)``, ``d_sr (S, R)``, ``d_rr (R, R)``. Ties go to the lower index, samples before references.
+    ``nna_samples`` / ``nna_real``: the classifier's accuracy on each set (1-NNA is their mean when ``S = R``): a
+    collapsed generator gets 100 % / 0 % when the real plants are farther from each other than from its samples."""
+    S, R = d_sr.shape
+    if S == 0 or R == 0:
+        raise ValueError(f"need samples and references, got {S} and {R}")
+    mmd = float(d_sr.min(0).values.mean())
+    cov = int(torch.unique(d_sr.argmin(1)).numel()) / R
+    full = torch.cat([torch.cat([d_ss, d_sr], 1), torch.cat([d_sr.T, d_rr], 1)], 0).clone()
+    full.fill_diagonal_(math.inf)  # leave-one-out
+    is_real = torch.arange(S + R) >= S
+    right = (is_real[full.argmin(1)] == is_real).double()
+    return {"mmd": mmd, "cov": cov, "nna": float(right.mean()), "nna_samples": float(right[:S].mean()),
+            "nna_real": float(right[S:].mean())}
+
+
+def novelty(d_st: Tensor, d_tt: Tensor, divisor: float = NOVELTY_DIVISOR) -> dict[str, float]:
+    """How far samples are from the training plants: ``d_st (S, N)`` sample-training and ``d_tt (N, N)``
+    training-training distances. ``threshold`` = the median nearest-neighbour distance between training plants /
+    ``divisor``; ``share_closer`` = the share of samples closer than it to some training plant."""
+    nn = d_tt + torch.diag(torch.full((d_tt.shape[0],), math.inf, dtype=d_tt.dtype))
+    threshold = float(nn.min(1).values.median()) / divisor
+    nearest = d_st.min(1).values
+    return {"threshold": threshold, "share_closer": float((nearest < threshold).double().mean()),
+            "nearest_min": float(nearest.min()), "nearest_median": float(nearest.median()),
+            "training_nn_median": threshold * divisor}
+
+
+def folds_of(n: int, generator: torch.Generator, max_folds: int = MAX_FOLDS) -> list[list[int]]:
+    """Held-out index sets: a permutation of ``range(n)`` cut into ``min(n // 2, max_folds)`` near-equal folds
+    (each of at least 2 plants, each training set of at least 2); empty when ``n < 4``."""
+    k = min(n // 2, max_folds)
+    if n < 4 or k < 2:
+        return []
+    perm = torch.randperm(n, generator=generator)
+    return [sorted(int(i) for i in f) for f in torch.tensor_split(perm, k)]
+
+
+# ----------------------------------------------------------------------------- one fold
+def _pool(name: str, model: FourDTreeModel, train: Tensor, h: int, draws: int, gen: torch.Generator
+          ) -> tuple[Tensor, Tensor]:
+    """A generator's candidate trajectories ``(P, n_t, k)`` and each draw's indices into them ``(draws, h)``."""
+    if name == "memorise":
+        n = train.shape[0]
+        idx = torch.stack([torch.randperm(n, generator=gen)[:h] if n >= h else
+                           torch.randint(n, (h,), generator=gen) for _ in range(draws)])
+        return train, idx
+    if name == "mean":
+        return model.mean.trajectory[None], torch.zeros(draws, h, dtype=torch.long)
+    P = draws * h
+    if name == "model":
+        z = model.sample_coefficients(P, gen)
+    elif name == "paper_scalar":
+        z = torch.zeros(P, model.n_modes, dtype=torch.float64)
+        u = (2 * torch.rand(P, 1, generator=gen, dtype=torch.float64) - 1) * PAPER_SCALAR_HALF_RANGE
+        z[:, :PAPER_SCALAR_MODES] = u
+    else:
+        raise ValueError(f"unknown generator {name!r}")
+    return model.trajectories(z).detach(), torch.arange(P).reshape(draws, h)
+
+
+def _within_draw(pool: Tensor, idx: Tensor) -> Tensor:
+    """``(draws, h, h)`` ground distances between the samples of each draw (each distinct pool pair once)."""
+    D, h = idx.shape
+    out = pool.new_zeros(D, h, h)
+    if h < 2:
+        return out
+    i, j = torch.triu_indices(h, h, 1)
+    a, b = idx[:, i].reshape(-1), idx[:, j].reshape(-1)
+    lo, hi = torch.minimum(a, b), torch.maximum(a, b)
+    keys, inv = torch.unique(lo * pool.shape[0] + hi, return_inverse=True)
+    p, q = keys // pool.shape[0], keys % pool.shape[0]
+    d = pool.new_zeros(len(keys))  # a pool item drawn twice is at distance 0 from itself
+    distinct = p != q
+    d[distinct] = distance4d(pool[p[distinct]], pool[q[distinct]])
+    vals = d[inv].reshape(D, -1)
+    out[:, i, j], out[:, j, i] = vals, vals
+    return out
+
+
+def _fit(train: list[Plant4D], settings: EvalSettings) -> tuple[FourDTreeModel, float]:
+    n_t = min(settings.n_t, QUICK_N_T) if settings.quick else settings.n_t
+    model = FourDTreeModel(lambdas=settings.lambdas, rotation=settings.rotation, n_t=n_t,
+                           medoid_candidates=1 if settings.quick else 3)
+    t0 = time.perf_counter()
+    model.fit([p.sequence for p in train])
+    return model, time.perf_counter() - t0
+
+
+def _reconstruct(model: FourDTreeModel, alpha: Tensor) -> Tensor:
+    """Tree-space trajectories ``(B, n_t, k)`` through the model: registered onto the mean, projected on the modes,
+    rebuilt."""
+    reg = model.mean.register(alpha)
+    z, _ = model.pca.project(reg.registered[:, 0], reg.q_registered)
+    return model.trajectories(z).detach()
+
+
+def _pad(alpha: Tensor, r: int) -> Tensor:
+    """Tree-space coordinates ``(..., k)`` written in the extended coordinates ``(..., k + r)`` (zeros off the
+    tree PCA: what the model and the training trajectories hold)."""
+    return torch.cat([alpha, alpha.new_zeros(*alpha.shape[:-1], r)], -1)
+
+
+def _extended_frames(model: FourDTreeModel, encs: list[Any]) -> tuple[list[Tensor], list[Tensor], int]:
+    """Held-out frames in coordinates ``(n, k + r)`` where Euclidean distances are the layout's tree distances:
+    the tree-PCA coefficients, then the part of the frames the tree PCA cannot express, in an orthonormal basis of
+    all held-out frames' such parts (orthogonal to the components). Also the frames' squared distances off the tree
+    PCA and to the tree mean."""
+    pca = model.population.pca
+    feats = [e.aligned.features().to(pca.mean) for e in encs]
+    coefs = [e.frame_coefficients.to(pca.mean) for e in encs]
+    offs = [f - pca.inverse_features(c) for f, c in zip(feats, coefs)]
+    _, sing, vh = torch.linalg.svd(torch.cat(offs), full_matrices=False)
+    basis = vh[sing > 1e-10 * float(sing.max().clamp_min(1e-300))]
+    ext = [torch.cat([c, o @ basis.T], 1) for c, o in zip(coefs, offs)]
+    sq = [torch.stack([o.square().sum(-1), (f - pca.mean).square().sum(-1)]) for o, f in zip(offs, feats)]
+    return ext, sq, basis.shape[0]
+
+
+def _forecast(model: FourDTreeModel, plant: Plant4D, frames: Tensor) -> dict[str, Any] | None:
+    """Forecast errors of one held-out plant (module doc); ``frames (n, k + r)`` its whole-sequence encoding in
+    the extended coordinates."""
+    seq = plant.sequence
+    n = len(seq)
+    half = n // 2
+    if half < 1 or n - half < 1:
+        return None
+    r = frames.shape[1] - model.population.k
+    t0 = time.perf_counter()
+    f = model.forecast(seq[:half], seq.times[half:], decode=False)
+    seconds = time.perf_counter() - t0
+    truth = frames[half:]
+    u = ((seq.times[half:] - seq.times[0]).to(torch.float64) / float(model.duration)).clamp(0, 1)
+    guesses = {"model": _pad(f.trajectory.to(truth), r), "last": frames[half - 1].expand_as(truth),
+               "mean": _pad(time_warp_trajectory(model.mean.trajectory, u.to(model.mean.trajectory)).to(truth), r)}
+    k = model.population.k
+    errs = {key: float((x - truth).norm(dim=-1).mean()) for key, x in guesses.items()}
+    pca_errs = {key: float((x[..., :k] - truth[..., :k]).norm(dim=-1).mean()) for key, x in guesses.items()}
+    return {**errs, "tree_pca": pca_errs, "observed": half, "forecast": n - half, "rate": float(f.rate),
+            "seconds": seconds}
+
+
+def _fold(train: list[Plant4D], held: list[Plant4D], settings: EvalSettings, gen: torch.Generator
+          ) -> dict[str, Any]:
+    model, fit_seconds = _fit(train, settings)
+    t0 = time.perf_counter()
+    encs = [model.population.transform(p.sequence) for p in held]
+    encode_seconds = (time.perf_counter() - t0) / len(held)
+    frames, sq, r = _extended_frames(model, encs)
+    k = model.population.k
+    t_alpha = _pad(model.population.trajectories.detach(), r)
+    r_alpha = torch.stack([resample_trajectory(x, p.sequence.times.to(x), model.n_t) if len(x) > 1 else
+                           x.expand(model.n_t, -1) for x, p in zip(frames, held)])
+    h = len(held)
+    draws = QUICK_DRAWS if settings.quick else DRAWS
+
+    # the generators against the held-out plants
+    d_rr = distance_matrix(r_alpha)
+    d_tt = distance_matrix(t_alpha)
+    d_rt = distance_matrix(r_alpha, t_alpha)
+    per_draw: dict[str, list[dict[str, float]]] = {}
+    novel: dict[str, dict[str, float]] = {}
+    t0 = time.perf_counter()
+    for name in GENERATORS:
+        pool, idx = _pool(name, model, t_alpha[..., :k], h, draws, gen)
+        pool = _pad(pool, r)
+        d_pr = d_rt.T if name == "memorise" else distance_matrix(pool, r_alpha)  # the training plants: known
+        d_ss = _within_draw(pool, idx)
+        per_draw[name] = [set_metrics(d_ss[j], d_pr[idx[j]], d_rr) for j in range(draws)]
+        if name in ("model", "paper_scalar"):
+            novel[name] = novelty(distance_matrix(pool[:NOVELTY_SAMPLES], t_alpha), d_tt)
+    metric_seconds = time.perf_counter() - t0
+    sanity = {m: v for m, v in set_metrics(d_tt, d_tt, d_tt).items() if m in METRICS}  # training set memorised
+
+    # reconstruction through the model, beside the mean and the nearest training plant
+    mean = _pad(model.mean.trajectory.detach(), r)
+    recon_r = distance4d(r_alpha, _pad(_reconstruct(model, r_alpha[..., :k]), r))
+    mean_r = distance4d(r_alpha, mean.expand_as(r_alpha))
+    recon_t = distance4d(t_alpha, _pad(_reconstruct(model, t_alpha[..., :k]), r))
+    mean_t = distance4d(t_alpha, mean.expand_as(t_alpha))
+    plants = []
+    for i, (p, e) in enumerate(zip(held, encs)):
+        dropped = float(e.dropped_sq_norm.sum())
+        kept = float(e.aligned.sq_norm().sum())
+        off, spread = sq[i]
+        plants.append({
+            "plant": p.name, "frames": len(p.sequence), "reconstruction": float(recon_r[i]),
+            "to_mean": float(mean_r[i]), "nearest_training": float(d_rt[i].min()),
+            "outside": float(e.dropped_sq_norm.mean().sqrt()),  # as FourDTreeModel.score().outside
+            "outside_share": dropped / (dropped + kept) if dropped + kept > 0 else 0.0,
+            "off_tree_space": float(off.mean().sqrt()),
+            "off_tree_space_share": float(off.sum() / spread.sum()) if float(spread.sum()) > 0 else 0.0,
+            "forecast": _forecast(model, p, frames[i]),
+        })
+
+    # speed: coefficients -> trajectories, and decoding to skeletons
+    n_rate = QUICK_RATE_BATCH if settings.quick else RATE_BATCH
+    z = model.sample_coefficients(n_rate, gen)
+    with torch.no_grad():
+        model.trajectories(z[:10])  # warm-up
+        t0 = time.perf_counter()
+        model.trajectories(z)
+    sample_seconds = (time.perf_counter() - t0) / n_rate
+    n_dec = QUICK_DECODE_BATCH if settings.quick else DECODE_BATCH
+    t0 = time.perf_counter()
+    model.decode(z[:n_dec])
+    decode_seconds = (time.perf_counter() - t0) / n_dec
+    nn_t = (d_tt + torch.diag(torch.full((len(train),), math.inf, dtype=d_tt.dtype))).min(1).values
+    return {
+        "train": [p.name for p in train], "held_out": [p.name for p in held], "modes": model.n_modes,
+        "tree_components": k, "extra_dimensions": r, "n_t": model.n_t, "draws": draws,
+        "mode_variance_ratio": [float(x) for x in model.pca.explained_variance_ratio],
+        "per_draw": per_draw, "novelty": novel, "sanity": sanity, "plants": plants,
+        "training_reconstruction": [float(x) for x in recon_t], "training_to_mean": [float(x) for x in mean_t],
+        "training_nn": [float(x) for x in nn_t],
+        "held_out_pairs": [float(d_rr[i, j]) for i in range(h) for j in range(i + 1, h)],
+        "seconds": {"fit": fit_seconds, "mean": float(model.report_["seconds"]["mean"]),
+                    "encode_per_plant": encode_seconds, "metrics": metric_seconds,
+                    "sample_per_plant": sample_seconds, "decode_per_plant": decode_seconds},
+    }
+
+
+# ----------------------------------------------------------------------------- the section
+def _source(datas: dict[str, EvalData]) -> str | None:
+    return next((s for s in ("mat", "synthetic", "swc") if s in datas), None)
+
+
+def _kind(plants: list[Plant4D], settings: EvalSettings, offset: int, progress: bool) -> dict[str, Any]:
+    folds = folds_of(len(plants), settings.generator(SEED_OFFSET + offset))
+    if not folds:
+        return {"plants": len(plants), "skipped": f"{len(plants)} plants: at least 4 are needed (2 to fit, 2 held out)"}
+    if settings.quick:  # the fold with the largest training set
+        folds = [min(folds, key=len)]
+    gen = settings.generator(SEED_OFFSET + offset + 1)
+    from tqdm.auto import tqdm
+
+    done = []
+    for f in tqdm(folds, disable=not progress, desc="generative folds", unit="fold"):
+        held = set(f)
+        done.append(_fold([p for i, p in enumerate(plants) if i not in held], [plants[i] for i in f], settings, gen))
+    held_plants = [p for d in done for p in d["plants"]]
+    fc = [p["forecast"] for p in held_plants if p["forecast"] is not None]
+    gens = {name: {m: summary(r[m] for d in done for r in d["per_draw"][name]) for m in PER_DRAW}
+            for name in GENERATORS}
+    return {
+        "plants": len(plants), "folds": [{k: v for k, v in d.items() if k != "per_draw"} | {
+            "generators": {name: {m: summary(r[m] for r in d["per_draw"][name])["mean"] for m in PER_DRAW}
+                           for name in GENERATORS}} for d in done],
+        "generators": gens,
+        "novelty": {name: {k: summary(d["novelty"][name][k] for d in done)["mean"]
+                           for k in ("threshold", "share_closer", "nearest_min", "nearest_median")}
+                    for name in ("model", "paper_scalar")},
+        "sanity": {m: max(d["sanity"][m] for d in done) if m != "cov" else min(d["sanity"][m] for d in done)
+                   for m in METRICS},
+        "held_out_pairs": summary(x for d in done for x in d["held_out_pairs"]),
+        "reconstruction": {
+            "held_out": summary(p["reconstruction"] for p in held_plants),
+            "held_out_to_mean": summary(p["to_mean"] for p in held_plants),
+            "held_out_nearest_training": summary(p["nearest_training"] for p in held_plants),
+            "training": summary(x for d in done for x in d["training_reconstruction"]),
+            "training_to_mean": summary(x for d in done for x in d["training_to_mean"]),
+            "outside": summary(p["outside"] for p in held_plants),
+            "outside_share": summary(p["outside_share"] for p in held_plants),
+            "off_tree_space": summary(p["off_tree_space"] for p in held_plants),
+            "off_tree_space_share": summary(p["off_tree_space_share"] for p in held_plants),
+        },
+        "forecast": {**{k: summary(f[k] for f in fc) for k in ("model", "last", "mean")},
+                     "tree_pca": {k: summary(f["tree_pca"][k] for f in fc) for k in ("model", "last", "mean")},
+                     "plants": len(fc), "wins_vs_last": sum(f["model"] < f["last"] for f in fc),
+                     "wins_vs_mean": sum(f["model"] < f["mean"] for f in fc)},
+    }
+
+
+def run(datas: dict[str, EvalData], settings: EvalSettings, progress: bool = False) -> dict[str, Any]:
+    """The section (module doc): ``{"generative": {...}, "timings": {...}}``."""
+    source = _source(datas)
+    out: dict[str, Any] = {"source": source, "skipped_sources": [s for s in datas if s != source],
+                           "generators": dict(GENERATOR_WHAT), "kinds": {}}
+    if source is None:
+        return {"generative": out, "timings": {}}
+    data = datas[source]
+    for j, kind in enumerate(data.kinds):
+        out["kinds"][kind] = _kind(data.by_kind(kind), settings, 10 * j, progress)
+    folds = [f for r in out["kinds"].values() for f in r.get("folds", [])]
+    if not folds:
+        return {"generative": out, "timings": {}}
+
+    def mean_of(key: str) -> float:
+        return sum(f["seconds"][key] for f in folds) / len(folds)
+
+    timings = {
+        "generative_fit": {"seconds": sum(f["seconds"]["fit"] for f in folds), "paper_seconds": None,
+                           "what": f"fit the 4D model, {len(folds)} fold(s) ({source})"},
+        "generative_mean": {"seconds": mean_of("mean"), "paper_seconds": PAPER_SECONDS["mean"],
+                            "what": "the 4D Karcher mean of one fit, with its temporal registrations (mean over "
+                                    "folds)"},
+        "generative_sample": {"seconds": mean_of("sample_per_plant"), "paper_seconds": PAPER_SECONDS["sample"],
+                              "what": "one generated 4D plant, coefficients -> trajectory (batched)"},
+        "generative_decode": {"seconds": mean_of("decode_per_plant"), "paper_seconds": None,
+                              "what": "one generated 4D plant decoded to skeletons"},
+        "generative_encode": {"seconds": mean_of("encode_per_plant"), "paper_seconds": None,
+                              "what": "one held-out 4D plant written in the model's tree space"},
+        "generative_metrics": {"seconds": sum(f["seconds"]["metrics"] for f in folds), "paper_seconds": None,
+                               "what": "ground distances of MMD / COV / 1-NNA, all folds and generators"},
+    }
+    out["samples_per_second"] = 1.0 / timings["generative_sample"]["seconds"]
+    return {"generative": out, "timings": timings}
+
+
+# ----------------------------------------------------------------------------- report
+def _pm(s: dict[str, float], percent: bool = False) -> str:
+    d = 2 if percent else 3
+    return f"{fmt(s['mean'], d, percent)} ± {fmt(s['std'], d, percent)}"
+
+
+def _nna_gap(x: dict[str, Any]) -> float:
+    """How far 1-NNA's accuracies on samples and on real plants are from 50 % (mean of both): a collapse (100 % / 0 %)
+    reaches 1-NNA 50 % but is as far from ideal as separable sets."""
+    return (abs(x["nna_samples"]["mean"] - 0.5) + abs(x["nna_real"]["mean"] - 0.5)) / 2
+
+
+def _verdicts(r: dict[str, Any]) -> list[str]:
+    """Plain sentences where the model loses to a baseline (on the means; 1-NNA by :func:`_nna_gap`)."""
+    g = r["generators"]
+    out = []
+    for label, badness in (("MMD", lambda x: x["mmd"]["mean"]), ("COV", lambda x: -x["cov"]["mean"]),
+                           ("1-NNA", _nna_gap)):
+        ours = badness(g["model"])
+        better = [b for b in GENERATORS[1:] if badness(g[b]) < ours]
+        if better:
+            out.append(f"{label}: the model is beaten by {', '.join(better)}.")
+    rec = r["reconstruction"]
+    if rec["held_out"]["mean"] > rec["held_out_nearest_training"]["mean"]:
+        out.append("Reconstruction: held-out plants are farther from their reconstruction than from the nearest "
+                   "training plant.")
+    f = r["forecast"]
+    if f["plants"]:
+        for b, what in (("last", "the last observed frame"), ("mean", "the 4D mean")):
+            for space, label in ((f, "layout"), (f["tree_pca"], "tree-PCA coordinates")):
+                if space["model"]["mean"] >= space[b]["mean"]:
+                    out.append(f"Forecast ({label}): the model's mean error is not below {what}'s.")
+    return out or ["The model is not beaten by any baseline on these means."]
+
+
+def markdown(report: dict[str, Any]) -> list[str]:
+    """The section's lines of ``report.md``."""
+    g = report.get("generative")
+    if not g:
+        return []
+    lines = ["## Generative model (held-out plants; beyond the paper)", ""]
+    if g["source"] is None:
+        return lines + ["No data source.", ""]
+    lines += [f"Source `{g['source']}`" + (f" (skipped: {', '.join(g['skipped_sources'])})" if g["skipped_sources"]
+                                         else "") + ". Each fold is held out once; the model is fit on the other "
+              "plants. Ground metric: the 4D distance after temporal registration of trajectories in each fold's "
+              "slot layout (tree PCA plus what it misses of the held-out frames). Each draw has as many samples "
+              "as held-out plants; MMD lower is better, COV higher, 1-NNA ideally 50 % (its accuracy on samples / "
+              "on real plants beside it). With a handful of plants these are coarse checks, not a ranking.", ""]
+    for kind, r in g["kinds"].items():
+        lines += [f"### {kind}", ""]
+        if "skipped" in r:
+            lines += [f"Skipped: {r['skipped']}.", ""]
+            continue
+        folds = r["folds"]
+        lines += [f"{r['plants']} plants, {len(folds)} fold(s): " + "; ".join(
+            f"{len(f['held_out'])} held out / {len(f['train'])} fit, {f['modes']} mode(s), {f['draws']} draws"
+            for f in folds) + ".", ""]
+        gs = r["generators"]
+        lines += md_table(["generator", "MMD", "COV", "1-NNA", "1-NNA samples / real", "what"],
+                          [[name, _pm(gs[name]["mmd"]), _pm(gs[name]["cov"], True), _pm(gs[name]["nna"], True),
+                            f"{fmt(gs[name]['nna_samples']['mean'], 2, True)} / "
+                            f"{fmt(gs[name]['nna_real']['mean'], 2, True)}", g["generators"][name]]
+                           for name in GENERATORS])
+        s, nv, rec = r["sanity"], r["novelty"], r["reconstruction"]
+        lines += ["", f"Held-out plants are {_pm(r['held_out_pairs'])} apart and {_pm(rec['held_out_to_mean'])} "
+                  "from the 4D mean: where the first is larger, a generator that stays near the mean makes every "
+                  "real plant's nearest neighbour a sample and reaches 1-NNA 50 % by collapse (samples 100 % / "
+                  "real 0 %).",
+                  "", f"Sanity (training set memorised, against itself): MMD {fmt(s['mmd'])}, COV "
+                  f"{fmt(s['cov'], 2, True)}, 1-NNA {fmt(s['nna'], 2, True)} (must be 0, 100 %, 0 %). "
+                  "Novelty (share of samples closer to a training plant than the median training nearest-neighbour "
+                  "distance / 4): " + ", ".join(f"{k} {fmt(v['share_closer'], 2, True)} (threshold "
+                                                f"{fmt(v['threshold'])})" for k, v in nv.items()) + ".", ""]
+        lines += md_table(["reconstruction (4D distance)", "held out", "training"],
+                          [["through the model", _pm(rec["held_out"]), _pm(rec["training"])],
+                           ["the 4D mean alone", _pm(rec["held_out_to_mean"]), _pm(rec["training_to_mean"])],
+                           ["nearest training plant", _pm(rec["held_out_nearest_training"]), "0"]])
+        lines += ["", f"Held-out branches outside the layout (dropped): {_pm(rec['outside'])} (tree distance, RMS "
+                  f"over frames), {_pm(rec['outside_share'], True)} of the frames' squared norm. Held-out frames off "
+                  f"the training tree PCA (in the ground metric, out of the model's reach): "
+                  f"{_pm(rec['off_tree_space'])} (RMS), {_pm(rec['off_tree_space_share'], True)} of their squared "
+                  "spread about the tree mean.", ""]
+        f = r["forecast"]
+        if f["plants"]:
+            fp = f["tree_pca"]
+            lines += md_table(["forecast (second half of the frames)", "tree distance in the layout",
+                               "in tree-PCA coordinates", "model wins (layout)"],
+                              [["model", _pm(f["model"]), _pm(fp["model"]), "-"],
+                               ["last observed frame stays", _pm(f["last"]), _pm(fp["last"]),
+                                f"{f['wins_vs_last']} / {f['plants']}"],
+                               ["4D mean at the same age", _pm(f["mean"]), _pm(fp["mean"]),
+                                f"{f['wins_vs_mean']} / {f['plants']}"]])
+            lines.append("")
+        lines += ["**Where the model loses:** " + " ".join(_verdicts(r)), ""]
+    return lines
