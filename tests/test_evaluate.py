@@ -3,6 +3,8 @@ the generative metrics are finite and in range, data discovery and the command's
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 import math
 from pathlib import Path
@@ -28,16 +30,22 @@ def dataset(tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="module")
 def report(dataset: Path, tmp_path_factory) -> tuple[dict, Path]:
+    """The whole evaluation, quick, through the command line (--json and --out), figures included."""
     out = tmp_path_factory.mktemp("report") / "r"
-    settings = EvalSettings(T=16, T_cycle=24, n_t=8, quick=True, figures=False)
-    return evaluate(dataset, out, settings, sections=("spatial",)), out
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        code = main(["evaluate", str(dataset), "--quick", "--T", "16", "--T-cycle", "24", "--n-t", "8", "--json",
+                     "--out", str(out), "--quiet"])
+    assert code == 0
+    return json.loads(buf.getvalue()), out
 
 
 def test_report_files_and_json_contract(report: tuple[dict, Path]) -> None:
     rep, out = report
-    assert (out / "report.md").is_file()
-    on_disk = json.loads((out / "report.json").read_text())
-    cc = on_disk["table2"]["cycle_consistency"]
+    for key in ("table1", "table2", "table3", "generative", "synthetic", "robustness", "timings"):
+        assert key in rep, key
+    assert json.loads((out / "report.json").read_text())["table2"] == rep["table2"]
+    cc = rep["table2"]["cycle_consistency"]
     assert set(cc) == set(EPS)
     for eps in EPS:
         for stat in ("mean", "median", "std"):
@@ -45,13 +53,19 @@ def test_report_files_and_json_contract(report: tuple[dict, Path]) -> None:
     # a looser threshold never fails more points
     means = [cc[e]["mean"] for e in EPS]
     assert means == sorted(means)
-    assert on_disk["timings"]["total"]["seconds"] > 0
+    assert all(v["seconds"] >= 0 for v in rep["timings"].values()) and rep["timings"]["total"]["seconds"] > 0
     md = (out / "report.md").read_text()
-    assert "Table 1" in md and "Table 2" in md and "0.94 %" in md  # the paper's figure beside ours
+    for title in ("Table 1", "Table 2", "Table 3", "Generative model", "Synthetic ground truth", "Robustness"):
+        assert title in md, title
+    assert "0.94 %" in md  # the paper's figure beside ours
+    figures = {Path(f).name for f in rep["figures"]}
+    assert {"registration.png", "geodesic4d.png", "mean.png"} <= figures
+    assert all((out / f).stat().st_size > 1000 for f in figures)
 
 
 def test_every_registration_lowered_its_distance(report: tuple[dict, Path]) -> None:
-    t1 = report[0]["table1"]
+    rep = report[0]
+    t1 = rep["table1"]
     for kinds in t1["trees3d"].values():
         for r in kinds.values():
             assert r["pairs"] > 0 and r["raised"] == 0 and r["after"]["mean"] <= r["before"]["mean"]
@@ -59,7 +73,21 @@ def test_every_registration_lowered_its_distance(report: tuple[dict, Path]) -> N
         assert r["pairs"] > 0
         for row in r["rows"]:
             assert row["after"] <= row["before"] + 1e-9
-        assert all(math.isfinite(r["after"][s]) for s in ("mean", "median", "std"))
+    for kind in rep["table3"]["kinds"].values():
+        for row in kind["pairs"]["rows"]:
+            assert row["after"] <= row["before"] + 1e-9
+        assert kind["pairs"]["raised"] == 0
+
+
+def test_generative_metrics_are_finite_and_in_range(report: tuple[dict, Path]) -> None:
+    kinds = report[0]["generative"]["kinds"]
+    assert kinds
+    for k in kinds.values():
+        for gen, m in k["generators"].items():
+            assert math.isfinite(m["mmd"]["mean"]) and m["mmd"]["mean"] >= 0, gen
+            for key in ("cov", "nna", "nna_samples", "nna_real"):
+                assert 0.0 <= m[key]["min"] <= m[key]["max"] <= 1.0, (gen, key)
+        assert k["sanity"] == {"mmd": 0.0, "cov": 1.0, "nna": 0.0}
 
 
 def test_existing_report_is_not_overwritten(report: tuple[dict, Path], dataset: Path, capsys) -> None:
@@ -67,6 +95,8 @@ def test_existing_report_is_not_overwritten(report: tuple[dict, Path], dataset: 
     before = (out / "report.json").read_text()
     with pytest.raises(FileExistsError):
         evaluate(dataset, out, EvalSettings(quick=True, figures=False), sections=("spatial",))
+    with pytest.raises(ValueError, match="unknown sections"):
+        evaluate(dataset, None, EvalSettings(quick=True), sections=("tables",))
     assert main(["evaluate", str(dataset), "--out", str(out), "--quick", "--sections", "spatial"]) == 2
     assert "--overwrite" in capsys.readouterr().err
     assert (out / "report.json").read_text() == before
