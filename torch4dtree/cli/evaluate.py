@@ -60,8 +60,6 @@ def run(args: argparse.Namespace) -> int:
         raise FileNotFoundError(f"{data}: no such folder")
     out = Path(args.out) if args.out else None
     if out is not None:
-        if not out.parent.is_dir():
-            raise FileNotFoundError(f"{out.parent}: the folder for --out does not exist")
         _prepare_out(out, args.overwrite)
     settings = EvalSettings(T=args.T, T_cycle=args.T_cycle, n_t=args.n_t, quick=args.quick, seed=args.seed,
                             figures=not args.no_figures and out is not None)
