@@ -282,3 +282,15 @@ def test_bad_checkpoints_fail_clearly(model: FourDTreeModel, tmp_path, capsys) -
     assert "not a readable torch4dtree checkpoint" in err and "Traceback" not in err
     with pytest.raises(FileExistsError):
         model.save(str(good))
+
+
+def test_large_batches_of_trajectories_equal_small_ones() -> None:
+    """Batches above SAMPLE_CHUNK are decoded in chunks: the same trajectories as row by row, any leading dims."""
+    from torch4dtree.model.trajectory import SAMPLE_CHUNK
+
+    a = _trajectories(6, seed=2)
+    reg = TrajectoryMean().fit(a).registered_
+    pca = TrajectoryPCA().fit(reg.registered[:, 0], reg.q_registered)
+    z = torch.randn(2, SAMPLE_CHUNK + 3, pca.n_modes, dtype=torch.float64, generator=torch.Generator().manual_seed(0))
+    rows = torch.stack([torch.cat([pca.trajectories(c) for c in x.split(100)]) for x in z])
+    assert torch.allclose(pca.trajectories(z), rows, atol=1e-12)
