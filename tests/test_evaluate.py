@@ -59,7 +59,7 @@ def test_report_files_and_json_contract(report: tuple[dict, Path]) -> None:
         assert title in md, title
     assert "0.94 %" in md  # the paper's figure beside ours
     figures = {Path(f).name for f in rep["figures"]}
-    assert {"registration.png", "geodesic4d.png", "mean.png"} <= figures
+    assert {"registration.png", "geodesic4d.png", "mean.png", "robustness.png"} <= figures
     assert all((out / f).stat().st_size > 1000 for f in figures)
 
 

@@ -134,3 +134,19 @@ def test_line_plot_draws_curves_with_gaps():
                     title="error vs noise", xlabel="noise", ylabel="error", size=(400, 260))
     assert img.shape == (260, 400, 3) and img.dtype == np.uint8
     _assert_drawn(img, min_colours=3)
+
+
+def test_robustness_figure_plots_the_report_curves(tmp_path):
+    """One panel per perturbation with curves from the report; nothing without a robustness section."""
+    from PIL import Image
+
+    from torch4dtree.evaluate.figures import robustness_figure
+
+    assert robustness_figure({}, tmp_path / "none.png") is None and not (tmp_path / "none.png").exists()
+    rows = [{"level": lv, "precision": p} for lv, p in ((0.0, 1.0), (0.01, 0.8), (0.05, 0.4))]
+    report = {"robustness": {"sources": {"swc": {"tomato": {"curves": {"rule": {"noise": rows, "drop": rows}}}}}}}
+    path = robustness_figure(report, tmp_path / "robustness.png")
+    img = np.asarray(Image.open(path).convert("RGB"))
+    assert img.shape[1] > 1.5 * img.shape[0]  # two panels side by side
+    colours = {tuple(c) for c in img.reshape(-1, 3)[::7].tolist()}
+    assert len(colours) > 5

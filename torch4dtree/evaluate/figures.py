@@ -225,7 +225,8 @@ def write_figures(report: dict, datas: dict[str, EvalData], settings: EvalSettin
         lay = figure_layout(settings)
         jobs = (("registration.png", lambda: _registration_figure(data, settings, lay, out / "registration.png")),
                 ("geodesic4d.png", lambda: _geodesic4d_figure(data, settings, lay, out / "geodesic4d.png")),
-                ("mean.png, modes.png, samples.png", lambda: _model_figures(data, settings, lay, out)))
+                ("mean.png, modes.png, samples.png", lambda: _model_figures(data, settings, lay, out)),
+                ("robustness.png", lambda: robustness_figure(report, out / "robustness.png")))
         for name, job in jobs:
             try:
                 made = job()
@@ -242,6 +243,30 @@ def write_figures(report: dict, datas: dict[str, EvalData], settings: EvalSettin
         "seconds": time.perf_counter() - t0, "paper_seconds": None,
         "what": "the figures (their registrations, a model fit and the rendering)"}
     return written
+
+
+ROBUSTNESS_PANELS = (("noise", "node noise (sigma, % of the plant's height)"),
+                     ("drop", "side branches dropped (%)"), ("split", "segments split (%)"))
+
+
+def robustness_figure(report: dict, path: Path) -> Path | None:
+    """The robustness curves of the report (identity precision against each perturbation's level, one curve per
+    source, hierarchy mode and kind), one panel per perturbation side by side; None without a robustness section."""
+    from ..render import save_image
+
+    sources = report.get("robustness", {}).get("sources", {})
+    panels = []
+    for key, xlabel in ROBUSTNESS_PANELS:
+        series = {f"{src} {mode} {kind}": ([100 * row["level"] for row in rows], [100 * row["precision"]
+                                                                                  for row in rows])
+                  for src, kinds in sources.items() for kind, r in kinds.items()
+                  for mode, curves in r["curves"].items() for k, rows in curves.items() if k == key and rows}
+        if series:
+            panels.append(line_plot(series, title=f"identity precision (%) vs {key}", xlabel=xlabel,
+                                    ylabel="precision (%)"))
+    if not panels:
+        return None
+    return save_image(path, np.concatenate(panels, axis=1))
 
 
 # ---------------------------------------------------------------------------------- line plots
