@@ -2,8 +2,10 @@
 
 :func:`fit_population` runs, for ``N`` 4D trees:
 
-1. **within-sequence registration** of each (:func:`register_sequence`), all with one metric (``lp`` relative
-   to the median last-frame main-branch length, so the metric does not depend on which plant is the reference);
+1. **within-sequence registration** of each (:func:`register_sequence` with its own weights, which favour
+   identities between consecutive frames: on synthetic maize 86 % of branches sit in their organ's slot after
+   chaining, against 65 % with the space's weights, ``evaluate/truth``); the space itself has one metric (``lp``
+   relative to the median last-frame main-branch length, so it does not depend on which plant is the reference);
 2. **the reference**: the medoid of the representatives (:func:`representative_tree`) among
    ``medoid_candidates`` candidates, chosen by an order-independent rule (the candidates are the
    representatives at evenly spaced ranks of total length, ties by name; the one with the smallest sum of
@@ -156,7 +158,9 @@ class Population(FittedModule):
         lam = (lm, ls, lp * RELATIVE_LP_SCALE * float(lengths.median()))
         from tqdm.auto import tqdm
 
-        aseqs = [register_sequence(s, lam, progress=False, lp_relative=False, **self.registration)
+        # identities over time with register_sequence's own weights (lp relative to each frame pair: a plant's
+        # young frames need it); the space's metric ``lam`` applies from the union layout on
+        aseqs = [register_sequence(s, progress=False, **self.registration)
                  for s in tqdm(seqs, disable=not progress, desc="within-sequence registration", unit="plant")]
         seconds["within_sequence"] = time.perf_counter() - t0
         t0 = time.perf_counter()
@@ -230,7 +234,7 @@ class Population(FittedModule):
             raise TypeError(f"expected a TreeSequence, got {type(sequence).__name__}")
         seq = sequence.to(device=self.ref_points.device, dtype=torch.float64)
         if aligned is None:
-            aligned = register_sequence(seq, self.lambdas_, lp_relative=False, **self.registration)
+            aligned = register_sequence(seq, **self.registration)  # as in fit
         rep = representative_tree(aligned)
         ref = self.reference_tree()
         reg = register_to_reference(rep, ref, self.lambdas_, self.rotation, lp_relative=False,

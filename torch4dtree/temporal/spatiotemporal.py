@@ -242,8 +242,9 @@ def register4d(reference: TreeSequence | AlignedSequence, moving: TreeSequence |
     Args:
         reference, moving: 4D trees (frames in time order, irregular times and missing days allowed), or their
             within-sequence registrations (:func:`register_sequence`) to reuse.
-        lambdas: ``(lm, ls, lp)``; ``lp`` is relative to ``A``'s main-branch length (as in
-            :func:`torch4dtree.trees.register_to_reference`).
+        lambdas: ``(lm, ls, lp)`` of the cross-sequence registration and of the 4D distance; ``lp`` is relative to
+            ``A``'s main-branch length (as in :func:`torch4dtree.trees.register_to_reference`). A
+            :class:`TreeSequence` is registered within itself with :func:`register_sequence`'s own weights.
         rotation: global rotation of ``B`` onto ``A`` (``"none"``, ``"vertical"``, ``"so3"``).
         n_t: common time samples of the trajectories (finer than the frame count).
         n_components: PCA components; default all (``frames - 1``), so nothing of the shapes is lost.
@@ -271,8 +272,8 @@ def register4d(reference: TreeSequence | AlignedSequence, moving: TreeSequence |
         elif isinstance(x, TreeSequence):
             if len(x) < 2:
                 raise ValueError(f"{x.name or 'a 4D tree'} has {len(x)} frame(s); a 4D tree needs at least 2")
-            seqs.append(register_sequence(x.to(torch.float64), lam, progress=progress, lp_relative=False,
-                                          **registration_kwargs))
+            # identities over time with register_sequence's own weights (as Population does); lam from here on
+            seqs.append(register_sequence(x.to(torch.float64), progress=progress, **registration_kwargs))
         else:
             raise TypeError(f"expected a TreeSequence or an AlignedSequence, got {type(x).__name__}")
     A, B = seqs
