@@ -31,7 +31,7 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
-from ..curves.srvf import interpolate_curve, inverse_srvf, warp_srvf
+from ..curves.srvf import warp_srvf
 from ..space.pca import TreePCA
 from ..trees.aligned import AlignedTrees
 from ..trees.registration import effective_lambdas, index_order_matches, register_trees
@@ -47,24 +47,8 @@ DEFAULT_NT = 32
 
 
 def representative_tree(seq: AlignedSequence) -> Trees:
-    """``seq``'s representative as a :class:`Trees` in the sequence's own parameterisation (``label`` = slot).
-
-    Every slot's SRVF from the latest frame holding it is integrated as it is (not resampled in arc length), so a
-    registration of this tree gives warps that act directly on the sequence's slots. Packed order = slot order.
-    """
-    a = seq.aligned
-    last = seq.latest_frame()
-    S = seq.num_slots
-    slots = torch.arange(S, device=last.device)
-    q, s = a.q[last, slots], a.s[last, slots]
-    parent = a.slot_parent.tolist()
-    curves: list[Tensor] = []
-    for k in range(S):  # parents come first
-        start = a.root[-1] if k == 0 else interpolate_curve(curves[parent[k]][None], s[k].reshape(1, 1))[0, 0]
-        curves.append(inverse_srvf(q[k], start))
-    s_out = torch.where(a.slot_parent >= 0, s, torch.zeros_like(s)).clamp(0, 1)
-    return Trees(torch.stack(curves), a.slot_parent.clone(), s_out, torch.tensor([S], device=last.device),
-                 slots.clone())
+    """``seq``'s representative tree (:meth:`AlignedSequence.representative`)."""
+    return seq.representative()
 
 
 def place_sequence(mov: AlignedSequence, slot_of: Sequence[int], num_slots: int, gamma: Tensor,

@@ -25,7 +25,7 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
-from ..curves.srvf import srvf, uniform_grid, warp_srvf
+from ..curves.srvf import interpolate_curve, inverse_srvf, srvf, uniform_grid, warp_srvf
 from ..curves.warps import compose_warps
 from ..trees.aligned import AlignedTrees
 from ..trees.registration import TreeRegistration, effective_lambdas, register_trees
@@ -96,19 +96,27 @@ class AlignedSequence:
         return torch.where(self.identity >= 0, frame, -1).amax(0)
 
     def representative(self) -> Trees:
-        """One tree holding every slot's branch from the latest frame where it is present (``label`` = slot).
+        """One tree holding every slot's branch from the latest frame where it is present (``label`` = slot, packed
+        order = slot order), rooted at the last frame's root.
 
-        All slots share the sequence's parameterisations and orientation, so each child sits on its
-        parent's curve (taken from a frame at least as late) at its own ``s``. Rooted at the last frame's
-        root. Use it to register two sequences through their representatives.
+        Each slot's SRVF is integrated as it is, in the sequence's own parameterisation (not resampled in arc
+        length), so a registration of this tree gives warps that act directly on the sequence's slots: register two
+        sequences through their representatives (:func:`~torch4dtree.temporal.register4d` does). Each child sits on
+        its parent's curve (from a frame at least as late) at its own ``s``.
         """
-        last = self.latest_frame()
-        slots = torch.arange(self.num_slots, device=last.device)
         a = self.aligned
-        rep = AlignedTrees(a.q[last, slots][None], a.s[last, slots][None],
-                           torch.ones(1, self.num_slots, dtype=torch.bool, device=last.device), a.root[-1:],
-                           a.slot_parent, a.slot_depth, slots[None].clone(), a.lambdas)
-        return rep.to_trees(eps=0.0)
+        last = self.latest_frame()
+        S = self.num_slots
+        slots = torch.arange(S, device=last.device)
+        q, s = a.q[last, slots], a.s[last, slots]
+        parent = a.slot_parent.tolist()
+        curves: list[Tensor] = []
+        for k in range(S):  # parents come first
+            start = a.root[-1] if k == 0 else interpolate_curve(curves[parent[k]][None], s[k].reshape(1, 1))[0, 0]
+            curves.append(inverse_srvf(q[k], start))
+        s_out = torch.where(a.slot_parent >= 0, s, torch.zeros_like(s)).clamp(0, 1)
+        return Trees(torch.stack(curves), a.slot_parent.clone(), s_out, torch.tensor([S], device=last.device),
+                     slots.clone())
 
 
 def _rotate(q: Tensor, R: Tensor) -> Tensor:
