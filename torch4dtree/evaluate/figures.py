@@ -225,8 +225,9 @@ def write_figures(report: dict, datas: dict[str, EvalData], settings: EvalSettin
         lay = figure_layout(settings)
         jobs = (("registration.png", lambda: _registration_figure(data, settings, lay, out / "registration.png")),
                 ("geodesic4d.png", lambda: _geodesic4d_figure(data, settings, lay, out / "geodesic4d.png")),
-                ("mean.png, modes.png, samples.png", lambda: _model_figures(data, settings, lay, out)),
-                ("robustness.png", lambda: robustness_figure(report, out / "robustness.png")))
+                ("mean.png, modes.png, samples.png", lambda: _model_figures(data, settings, lay, out)))
+        if report.get("robustness"):  # the curves of that section, when it ran
+            jobs += (("robustness.png", lambda: robustness_figure(report, out / "robustness.png")),)
         for name, job in jobs:
             try:
                 made = job()
