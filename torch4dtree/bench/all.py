@@ -114,8 +114,12 @@ def ratios(result: dict[str, Any]) -> dict[str, dict[str, Any]]:
             _get(fourd, kind, "pair_seconds"), PAPER_4D[f"{kind}_pair"], paper,
             f"register two {kind} 4D plants in space and time (within-sequence registrations included), one pair")
     out["4d_geodesic_vs_paper"] = _ratio(
+        _get(fourd, "tomato", "trajectory_geodesic_seconds"), PAPER_4D["geodesic"], paper,
+        "a 4D geodesic between two tomato plants, 5 steps, as trajectories in the tree space (what the paper's "
+        "0.025 s most likely covers; it does not say)")
+    out["4d_geodesic_decoded_vs_paper"] = _ratio(
         _get(fourd, "tomato", "decoded_geodesic_seconds"), PAPER_4D["geodesic"], paper,
-        "a 4D geodesic between two tomato plants, 5 steps, ours decoded to trees at every common time")
+        "the same decoded to 3D trees at every common time (5 x 32 trees)")
     return out
 
 
