@@ -122,3 +122,19 @@ def test_pheno4d_discovery() -> None:
     tom1 = next(p for p in mat.plants if p.name == "tom_1_seq")
     assert tom1.altered is not None and len(tom1.altered) < len(tom1.sequence)
     assert len(tom1.files) == len(tom1.sequence) and all(f.is_file() for f in tom1.files)
+
+
+def test_any_dataset_folder_is_evaluated_as_one_kind(dataset: Path, tmp_path) -> None:
+    """A dataset folder of the kind `fit` reads (no dataset.json, no mat/ or swc/) is source `folder`, one kind."""
+    import shutil
+
+    generic = tmp_path / "plants"
+    shutil.copytree(dataset, generic)
+    (generic / "dataset.json").unlink()
+    assert sources_of(generic) == ["folder"]
+    data = load_eval_data(generic, "folder", T=16)
+    assert data.kinds == ["plant"] and len(data.plants) == 4 and not data.has_truth
+    rep = evaluate(generic, None, EvalSettings(T=16, T_cycle=16, n_t=8, quick=True, figures=False),
+                   sections=("spatial", "truth"))
+    assert rep["table1"]["source_4d"] == "folder" and "synthetic" not in rep
+    assert rep["table1"]["plants4d"]["plant"]["pairs"] > 0

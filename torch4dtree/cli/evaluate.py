@@ -1,9 +1,10 @@
 """``torch4dtree evaluate DATA_DIR [--json] [--out DIR]``: the paper's experiments and the generative model's quality.
 
-``DATA_DIR`` is a Pheno4D-style folder (``mat/`` and / or ``swc/`` sequence folders, as ``../shared/data/pheno4d``)
-or a synthetic dataset folder (``torch4dtree synth``). Writes ``report.md`` (tables with the paper's figures beside
-ours, figures) and ``report.json`` into ``--out`` (a new or empty folder; ``--overwrite`` replaces an earlier
-report there); ``--json`` prints the report as one JSON object. See :mod:`torch4dtree.evaluate`.
+``DATA_DIR`` is a Pheno4D-style folder (``mat/`` and / or ``swc/`` sequence folders, as ``../shared/data/pheno4d``),
+a synthetic dataset folder (``torch4dtree synth``) or any dataset folder ``fit`` reads (one kind, no ground truth).
+Writes ``report.md`` (tables with the paper's figures beside ours, figures) and ``report.json`` into ``--out`` (a new
+or empty folder; ``--overwrite`` replaces an earlier report there); ``--json`` prints the report as one JSON object.
+See :mod:`torch4dtree.evaluate`.
 """
 
 from __future__ import annotations
@@ -18,7 +19,8 @@ SECTION_NAMES = ("spatial", "temporal", "generative", "truth", "robustness")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("data", help="a Pheno4D-style folder (mat/ and/or swc/ inside) or a synthetic dataset folder")
+    p.add_argument("data", help="a Pheno4D-style folder (mat/ and/or swc/ inside), a synthetic dataset folder or any "
+                                "dataset folder (one sequence folder per plant)")
     p.add_argument("--out", default=None, metavar="DIR",
                    help="write report.md, report.json and the figures here (a new or empty folder) (default: none)")
     p.add_argument("--json", action="store_true", help="print the report as one JSON object on stdout")

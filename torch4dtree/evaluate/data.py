@@ -7,6 +7,8 @@ Two layouts are recognised:
   ``DIR/swc/<plant>/`` (raw skeletons). The kind is read from the plant's name (``maize...`` or tomato).
 * **Synthetic dataset folder** (``torch4dtree synth``): sequence folders of SWC skeletons whose type column is the
   organ label, and ``dataset.json`` with each plant's growth clock (:attr:`Plant4D.truth`).
+* **Any other dataset folder** (what ``torch4dtree fit`` reads: one sequence folder per plant), source ``folder``:
+  every plant is of one kind, ``plant``; no ground truth, no paper figures beside ours.
 """
 
 from __future__ import annotations
@@ -21,9 +23,12 @@ from ..io import LoadOptions, read_sequence, sequence_folders
 from ..io.dataset import DatasetError
 from ..trees.structures import TreeSequence
 
-__all__ = ["EvalData", "EvalSettings", "Plant4D", "load_eval_data", "sources_of"]
+__all__ = ["EvalData", "EvalSettings", "Plant4D", "load_eval_data", "primary_source", "sources_of"]
 
-SOURCES = ("mat", "swc", "synthetic")
+SOURCES = ("mat", "swc", "synthetic", "folder")
+# the source the paper-style 4D experiments and the figures use when a folder has several: the paper's trees first
+PRIMARY_ORDER = ("mat", "synthetic", "swc", "folder")
+GENERIC_KIND = "plant"
 
 
 @dataclass
@@ -101,8 +106,18 @@ def sources_of(root: str | Path) -> list[str]:
         return found
     if (root / "dataset.json").is_file():
         return ["synthetic"]
-    raise DatasetError(f"{root}: neither a Pheno4D-style folder (mat/ or swc/ inside) nor a synthetic dataset "
-                       "folder (dataset.json inside)")
+    try:
+        sequence_folders(root)
+    except DatasetError:
+        raise DatasetError(f"{root}: neither a Pheno4D-style folder (mat/ or swc/ inside), a synthetic dataset folder "
+                           "(dataset.json inside) nor a dataset folder (sequence folders of .swc / .mat frames)"
+                           ) from None
+    return ["folder"]
+
+
+def primary_source(datas: dict[str, EvalData]) -> str | None:
+    """The source the 4D experiments and figures use (:data:`PRIMARY_ORDER`), None without plants."""
+    return next((s for s in PRIMARY_ORDER if s in datas and datas[s].plants), None)
 
 
 def _frame_files(folder: Path, used: list[str]) -> list[Path]:
@@ -128,6 +143,11 @@ def load_eval_data(root: str | Path, source: str, T: int = 64, max_plants: int |
                 raise DatasetError(f"{folder}: not listed in {root / 'dataset.json'}")
             data.plants.append(Plant4D(rec.get("kind", meta["kind"]), folder.name, loaded.sequence,
                                        _frame_files(folder, loaded.files), truth=rec))
+        return data
+    if source == "folder":
+        for folder in sequence_folders(root)[:max_plants]:
+            loaded = read_sequence(folder, LoadOptions(T=T, dtype=torch.float64))
+            data.plants.append(Plant4D(GENERIC_KIND, folder.name, loaded.sequence, _frame_files(folder, loaded.files)))
         return data
     opts = LoadOptions(T=T, dtype=torch.float64, repair=True)
     base = root / source

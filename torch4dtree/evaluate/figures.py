@@ -29,7 +29,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from .data import EvalData, EvalSettings, Plant4D
+from .data import EvalData, EvalSettings, Plant4D, primary_source
 
 if TYPE_CHECKING:
     from ..temporal import SpatiotemporalRegistration
@@ -37,11 +37,7 @@ if TYPE_CHECKING:
     from ..trees.structures import Trees
 
 __all__ = ["FigureLayout", "correspondence_labels", "figure_layout", "index_order_registration", "line_plot",
-           "primary_source", "registration_pair", "registration_row", "write_figures"]
-
-# which source the figures show when a folder has several: the paper's hand-corrected trees first
-PRIMARY_ORDER = ("mat", "synthetic", "swc")
-
+           "primary_data", "registration_pair", "registration_row", "write_figures"]
 
 @dataclass(frozen=True)
 class FigureLayout:
@@ -66,9 +62,10 @@ def figure_layout(settings: EvalSettings) -> FigureLayout:
     return FigureLayout(cell=160, steps=5, columns=FIGURE_COLUMNS, n_t=min(settings.n_t, 16), max_plants=None)
 
 
-def primary_source(datas: Mapping[str, EvalData]) -> EvalData | None:
-    """The source the figures show: ``mat``, else ``synthetic``, else ``swc`` (``None`` if there is none)."""
-    return next((datas[s] for s in PRIMARY_ORDER if s in datas and datas[s].plants), None)
+def primary_data(datas: Mapping[str, EvalData]) -> EvalData | None:
+    """The plants the figures show (:func:`.data.primary_source`; ``None`` if there are none)."""
+    name = primary_source(dict(datas))
+    return datas[name] if name is not None else None
 
 
 def _kind_with(data: EvalData, plants: int) -> str | None:
@@ -215,7 +212,7 @@ def _model_figures(data: EvalData, settings: EvalSettings, lay: FigureLayout, ou
 def write_figures(report: dict, datas: dict[str, EvalData], settings: EvalSettings, out: Path) -> list[str]:
     """Write the figures (module doc) into ``out``; returns their paths. Adds ``report["timings"]["figures"]`` and,
     for each figure left out and why, ``report["figure_notes"]``."""
-    data = primary_source(datas)
+    data = primary_data(datas)
     notes: list[str] = []
     written: list[str] = []
     t0 = time.perf_counter()

@@ -79,7 +79,7 @@ from torch import Tensor
 from ..model import FourDTreeModel
 from ..temporal.registration import register_trajectories, time_warp_trajectory
 from ..temporal.trajectory import resample_trajectory
-from .data import EvalData, EvalSettings, Plant4D
+from .data import EvalData, EvalSettings, Plant4D, primary_source
 from .stats import fmt, md_table, summary
 
 __all__ = ["GENERATORS", "distance4d", "distance_matrix", "folds_of", "markdown", "novelty", "run", "set_metrics"]
@@ -361,10 +361,6 @@ def _fold(train: list[Plant4D], held: list[Plant4D], settings: EvalSettings, gen
 
 
 # ----------------------------------------------------------------------------- the section
-def _source(datas: dict[str, EvalData]) -> str | None:
-    return next((s for s in ("mat", "synthetic", "swc") if s in datas), None)
-
-
 def _kind(plants: list[Plant4D], settings: EvalSettings, offset: int, progress: bool) -> dict[str, Any]:
     folds = folds_of(len(plants), settings.generator(SEED_OFFSET + offset))
     if not folds:
@@ -413,7 +409,7 @@ def _kind(plants: list[Plant4D], settings: EvalSettings, offset: int, progress: 
 
 def run(datas: dict[str, EvalData], settings: EvalSettings, progress: bool = False) -> dict[str, Any]:
     """The section (module doc): ``{"generative": {...}, "timings": {...}}``."""
-    source = _source(datas)
+    source = primary_source(datas)
     out: dict[str, Any] = {"source": source, "skipped_sources": [s for s in datas if s != source],
                            "generators": dict(GENERATOR_WHAT), "kinds": {}}
     if source is None:

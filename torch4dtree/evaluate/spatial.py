@@ -28,7 +28,7 @@ from ..io import LoadOptions, read_tree
 from ..trees.correspondence import DEFAULT_EPS, PAPER_CYCLE_ERRORS, cycle_consistency
 from ..trees.registration import register_trees
 from ..trees.structures import Trees
-from .data import EvalData, EvalSettings, Plant4D
+from .data import EvalData, EvalSettings, Plant4D, primary_source
 from .pairs import pair_seconds, registered_pairs
 from .stats import fmt, md_table, summary
 
@@ -42,11 +42,6 @@ _PAPER_MEDIAN_STD = {0.1: (0.0008, 0.0201), 0.05: (0.0015, 0.0362), 0.02: (0.006
 PAPER_TABLE2 = {e: (PAPER_CYCLE_ERRORS[e], *ms) for e, ms in _PAPER_MEDIAN_STD.items()}
 PAPER_SECONDS = {"register_3d": 2.3, "register_4d_tomato": 235.0, "register_4d_maize": 17.0}
 QUICK_PAIRS = 3  # consecutive pairs per kind and source with settings.quick
-
-
-def primary_source(datas: dict[str, EvalData]) -> str:
-    """The source the paper-style 4D experiments use: the paper's ``.mat`` trees, else synthetic, else SWC."""
-    return next(s for s in ("mat", "synthetic", "swc") if s in datas)
 
 
 def consecutive_pairs(data: EvalData, kind: str, settings: EvalSettings) -> list[tuple[Plant4D, int]]:
@@ -121,6 +116,8 @@ def _cycle(data: EvalData, kind: str, settings: EvalSettings, T: int, progress: 
 
 def run(datas: dict[str, EvalData], settings: EvalSettings, progress: bool = False) -> dict[str, Any]:
     primary = primary_source(datas)
+    if primary is None:
+        raise ValueError("no plants to evaluate")
     table1: dict[str, Any] = {"trees3d": {}, "plants4d": {}, "source_4d": primary}
     table2: dict[str, Any] = {"eps": list(DEFAULT_EPS), "paper": {str(e): dict(zip(("mean", "median", "std"), v))
                                                                    for e, v in PAPER_TABLE2.items()},

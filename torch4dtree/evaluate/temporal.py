@@ -1,6 +1,6 @@
 """Table 3 of the paper: temporal registration of 4D plants, 4D distance before and after, beside the paper's figures.
 
-Everything runs on one source, the one Table 1's 4D rows use (:func:`.spatial.primary_source`: the paper's ``.mat``
+Everything runs on one source, the one Table 1's 4D rows use (:func:`.data.primary_source`: the paper's ``.mat``
 trees when present, else the synthetic plants, else SWC). The distance is :mod:`torch4dtree.temporal`'s 4D distance
 between trajectories in the tree space (``n_t`` common times); *before* is with the identity time warp (after any
 spatial registration), *after* with the optimal one. Four rows per kind:
@@ -67,9 +67,8 @@ from ..temporal import AlignedSequence, SpatiotemporalRegistration, register4d, 
 from ..temporal.registration import register_trajectories
 from ..temporal.trajectory import resample_trajectory
 from ..trees.structures import TreeSequence
-from .data import EvalData, EvalSettings, Plant4D
+from .data import EvalData, EvalSettings, Plant4D, primary_source
 from .pairs import aligned_sequence, registered_pairs
-from .spatial import primary_source
 from .stats import fmt, md_table, summary
 
 __all__ = ["PAPER_TABLE3", "PlantWarp", "markdown", "plant_warps", "run", "true_warp", "warp_error", "warped_copies"]
