@@ -10,14 +10,22 @@
    ``medoid_candidates`` candidates, chosen by an order-independent rule (the candidates are the
    representatives at evenly spaced ranks of total length, ties by name; the one with the smallest sum of
    squared registered distances of all representatives onto it wins);
-3. **cross-sequence registration** of every representative onto the reference's (one batched call) and the
-   **union layout** of all frames (:func:`combine_many`);
+3. **cross-sequence registration** onto a growing **union representative** and the **union layout** of all frames
+   (:func:`combine_many`). The union representative starts as the reference's; the other representatives are
+   registered onto it one by one, in the order of their registered distance to the reference (ties by name, so the
+   result does not depend on the input order): a branch matched to a union slot goes there, also to a slot an
+   earlier plant opened, and an unmatched one opens a slot whose branch joins the union representative
+   (:func:`grow_union`). So a branch the reference lacks opens one slot that later plants can share (issue 13:
+   matching every plant onto the reference alone opened a slot per plant for it; 6 synthetic tomato plants,
+   ``synthetic_dataset("tomato", plants=6, seed=0, n_frames=8, T=32)``: 212 -> 164 slots, Pheno4D tomato ``.mat``
+   at T = 64: 227 -> 178). Until a slot is opened, the batched registrations onto the reference are reused; the
+   later ones are one call per plant (cross-sequence time there 6.4 -> 9.6 s, Pheno4D 14 -> 20 s);
 4. a :class:`TreePCA` on all frames, and each 4D tree's **trajectory** ``(n_t, k)`` on the normalised time grid
    ``linspace(0, 1, n_t)`` between its first and last frame (its ``time_spans`` give data units back).
 
 :class:`Population` is an ``nn.Module`` holding what is needed to put a *new* 4D tree into the fitted space
-(:meth:`Population.transform`): the reference representative (its branch points), the tree PCA, the settings.
-A new tree's branches that match no reference slot cannot be written in the layout and are dropped (their
+(:meth:`Population.transform`): the union representative (its branch points, one per layout slot), the tree PCA,
+the settings. A new tree's branches that match no slot cannot be written in the layout and are dropped (their
 cost is reported).
 """
 
@@ -35,7 +43,7 @@ from ..space.pca import TreePCA
 from ..trees.aligned import AlignedTrees, slot_weights
 from ..trees.registration import RELATIVE_LP_SCALE, _check_lambdas, register_to_reference
 from ..trees.structures import Trees, TreeSequence
-from .spatiotemporal import combine_many, place_sequence, representative_tree
+from .spatiotemporal import combine_many, grow_union, open_slots, place_sequence, representative_tree
 from .trajectory import resample_trajectory
 from .within import AlignedSequence, register_sequence
 
@@ -74,8 +82,8 @@ class Population(FittedModule):
             registration of all ``N``).
         registration: keyword arguments of the tree registrations (``neighbourhood``, ``n_starts``...).
 
-    Fitted buffers: ``ref_points (S_r, T, d)``, ``ref_parent (S_r,)``, ``ref_s (S_r,)`` (the reference
-    representative, slot order = the layout's first ``S_r`` slots), ``trajectories (N, n_t, k)``,
+    Fitted buffers: ``ref_points (S, T, d)``, ``ref_parent (S,)``, ``ref_s (S,)`` (the union representative,
+    module doc step 3: one branch per layout slot, in slot order), ``trajectories (N, n_t, k)``,
     ``time_spans (N, 2)`` (first and last frame time of each training 4D tree); the tree PCA is the submodule
     ``pca``. ``lambdas_`` (the effective weights), ``names_``, ``report_`` travel in the extra state.
     """
@@ -133,7 +141,7 @@ class Population(FittedModule):
             raise NotFittedError("Population is not fitted: call fit() or load_state_dict() first")
 
     def reference_tree(self) -> Trees:
-        """The reference representative as a one-tree :class:`Trees` (float64; ``label`` = slot)."""
+        """The union representative (module doc, step 3) as a one-tree :class:`Trees` (float64; ``label`` = slot)."""
         S = self.ref_parent.shape[0]
         dev = self.ref_points.device
         return Trees(self.ref_points.to(torch.float64), self.ref_parent.clone(), self.ref_s.to(torch.float64),
@@ -167,9 +175,9 @@ class Population(FittedModule):
         reps = [representative_tree(a) for a in aseqs]
         names = [s.name or f"plant_{i}" for i, s in enumerate(seqs)]
         ref, regs = self._medoid(reps, names, lam, progress)
+        movs, union, regs = self._union(aseqs, reps, names, ref, regs, lam, progress)
         seconds["cross_sequence"] = time.perf_counter() - t0
         t0 = time.perf_counter()
-        movs = [i for i in range(len(seqs)) if i != ref]
         layout = combine_many(aseqs[ref], [aseqs[i] for i in movs], [regs[i].matches for i in movs],
                               [regs[i].gamma.to(torch.float64) for i in movs],
                               [regs[i].rotation.to(torch.float64) for i in movs], lam)
@@ -186,18 +194,18 @@ class Population(FittedModule):
         where = {i: list(range(starts[j], starts[j + 1])) for j, i in enumerate(order)}
         self.layout_ = layout[[r for i in range(len(seqs)) for r in where[i]]]
         self.sequences_ = aseqs
-        rep = reps[ref]
         spans = torch.tensor([[float(s.times[0]), float(s.times[-1])] for s in seqs], dtype=torch.float64)
         self.lambdas_, self.names_ = lam, names
         self.report_ = {
-            "reference": names[ref], "slots": layout.num_slots, "reference_slots": rep.points.shape[0],
+            "reference": names[ref], "slots": layout.num_slots, "reference_slots": reps[ref].points.shape[0],
             "frames": int(sum(counts)), "components": self.pca.n_components_,
             "variance_explained": float(self.pca.explained_variance_ratio.sum()),
             "within_sequence_distance_mean": float(torch.cat([a.distances for a in aseqs]).mean()),
+            # each plant's registration the layout used: onto the union representative as it was at its turn
             "cross_distance_before": [float(r.distance_before) for r in regs],
             "cross_distance_after": [float(r.distance) for r in regs], "seconds": seconds,
         }
-        self._set_fitted(ref_points=rep.points, ref_parent=rep.parent, ref_s=rep.s, trajectories=trajs,
+        self._set_fitted(ref_points=union.points, ref_parent=union.parent, ref_s=union.s, trajectories=trajs,
                          time_spans=spans)
         return self
 
@@ -221,10 +229,35 @@ class Population(FittedModule):
         assert best is not None
         return best[2], best[3]
 
+    def _union(self, aseqs: list[AlignedSequence], reps: list[Trees], names: list[str], ref: int, regs: list[Any],
+               lam: tuple[float, float, float], progress: bool) -> tuple[list[int], Trees, list[Any]]:
+        """The moving plants in union order, the union representative and each plant's registration onto it
+        (module doc, step 3).
+
+        Order: registered distance to the reference, ties by name (input-order independent). A registration onto
+        the reference stays valid while no plant has opened a slot, so only later plants are registered again.
+        """
+        movs = sorted((i for i in range(len(reps)) if i != ref), key=lambda i: (float(regs[i].distance), names[i]))
+        union = reps[ref]
+        slot_parent = aseqs[ref].aligned.slot_parent.tolist()
+        slot_depth = aseqs[ref].aligned.slot_depth.tolist()
+        regs = list(regs)
+        from tqdm.auto import tqdm
+
+        for i in tqdm(movs, disable=not progress, desc="union layout", unit="plant"):
+            if union.points.shape[0] > reps[ref].points.shape[0]:
+                regs[i] = register_to_reference(reps[i], union, lam, self.rotation, lp_relative=False,
+                                                **self.registration)[0]
+            gamma, rot = regs[i].gamma.to(torch.float64), regs[i].rotation.to(torch.float64)
+            targets = open_slots(aseqs[i], regs[i].matches, slot_parent, slot_depth)
+            union = grow_union(union, aseqs[i], targets, slot_parent, gamma, rot)
+        return movs, union, regs
+
     # ------------------------------------------------------------------------ transform
     def transform(self, sequence: TreeSequence, aligned: AlignedSequence | None = None) -> SequenceEncoding:
         """Write a new 4D tree into the fitted space (module doc): within-sequence registration, registration of
-        its representative onto the reference, its frames in the layout, their coefficients and trajectory.
+        its representative onto the union representative, its frames in the layout, their coefficients and
+        trajectory.
 
         ``aligned``: its within-sequence registration, if already computed. A single frame is allowed (its
         trajectory is then constant).

@@ -31,7 +31,7 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
-from ..curves.srvf import warp_srvf
+from ..curves.srvf import interpolate_curve, inverse_srvf, warp_srvf
 from ..space.pca import TreePCA
 from ..trees.aligned import AlignedTrees
 from ..trees.registration import effective_lambdas, index_order_matches, register_trees
@@ -40,8 +40,8 @@ from .registration import TemporalRegistration, geodesic4d, register_trajectorie
 from .trajectory import resample_trajectory, trajectory_srvf
 from .within import AlignedSequence, _inverse_at, register_sequence
 
-__all__ = ["SpatiotemporalRegistration", "combine_many", "combine_sequences", "place_sequence", "register4d",
-           "representative_tree"]
+__all__ = ["SpatiotemporalRegistration", "combine_many", "combine_sequences", "grow_union", "open_slots",
+           "place_sequence", "register4d", "representative_tree"]
 
 DEFAULT_NT = 32
 
@@ -89,14 +89,66 @@ def place_sequence(mov: AlignedSequence, slot_of: Sequence[int], num_slots: int,
     return q, s, present, source
 
 
+def open_slots(mov: AlignedSequence, match: Sequence[tuple[int, int]], slot_parent: list[int],
+               slot_depth: list[int]) -> list[int]:
+    """The union-layout slot of each of ``mov``'s slots; each unmatched one opens a new slot (appended, in ``mov``'s
+    slot order, child of its parent's slot), ``slot_parent`` / ``slot_depth`` growing in place.
+
+    ``match``: ``[(mov slot, union slot), ...]``, to any slot already in ``slot_parent`` (also one opened by an
+    earlier moving sequence). The one rule :func:`combine_many` and :func:`grow_union` share, so slot indices agree.
+    """
+    slot_of = dict(match)
+    mov_parent = mov.aligned.slot_parent.tolist()
+    for k in range(len(mov_parent)):  # parents first, so a parent's slot exists
+        if k not in slot_of:
+            slot_of[k] = len(slot_parent)
+            parent = slot_of[mov_parent[k]] if mov_parent[k] >= 0 else -1
+            slot_parent.append(parent)
+            slot_depth.append(slot_depth[parent] + 1)
+    return [slot_of[k] for k in range(len(mov_parent))]
+
+
+def grow_union(union: Trees, mov: AlignedSequence, targets: Sequence[int], slot_parent: Sequence[int],
+               gamma: Tensor, rotation: Tensor) -> Trees:
+    """``union`` (a one-tree representative, ``label`` = slot) with a branch for every slot ``mov`` opened.
+
+    Args:
+        targets: union slot of each ``mov`` slot (:func:`open_slots`); slots past ``union``'s are new.
+        slot_parent: the union layout's parents, new slots included.
+        gamma, rotation: ``mov``'s registration onto ``union`` (as in :func:`place_sequence`).
+
+    A new slot's branch is ``mov``'s, as its representative has it (latest frame holding it), warped and rotated
+    into the union's coordinates by :func:`place_sequence`, hung on its parent's union branch at the warped ``s``.
+    """
+    S_u, S = union.points.shape[0], len(slot_parent)
+    if S == S_u:
+        return union
+    q, s, present, _ = place_sequence(mov, targets, S, gamma, rotation)
+    n = q.shape[0]
+    frame = torch.arange(n, device=q.device)[:, None].expand(n, S)
+    latest = torch.where(present, frame, -1).amax(0)
+    curves = list(union.points.to(q.dtype).unbind(0))
+    s_new = []
+    for u in range(S_u, S):
+        j = int(latest[u])
+        start = interpolate_curve(curves[slot_parent[u]][None], s[j, u].reshape(1, 1))[0, 0]
+        curves.append(inverse_srvf(q[j, u], start))
+        s_new.append(s[j, u].clamp(0, 1))
+    dev = union.points.device
+    return Trees(torch.stack(curves), torch.as_tensor(list(slot_parent), dtype=torch.long, device=dev),
+                 torch.cat([union.s.to(q.dtype), torch.stack(s_new)]), torch.tensor([S], device=dev),
+                 torch.arange(S, device=dev))
+
+
 def combine_many(ref: AlignedSequence, movs: Sequence[AlignedSequence], matches: Sequence[Sequence[tuple[int, int]]],
                  gammas: Sequence[Tensor], rotations: Sequence[Tensor],
                  lambdas: tuple[float, float, float]) -> AlignedTrees:
     """All frames of ``ref`` then of every ``movs[i]`` in one union layout, given a correspondence of each onto ``ref``.
 
     Args:
-        matches: per moving sequence, ``[(mov slot, ref slot), ...]`` (a partial matching that maps parents to
-            parents).
+        matches: per moving sequence, ``[(mov slot, union slot), ...]`` (a partial matching that maps parents to
+            parents): a union slot is one of ``ref``'s or one opened by an earlier moving sequence (slots open in
+            the order of :func:`open_slots`, as :func:`grow_union` builds a union representative).
         gammas: per moving sequence, ``(S_mov, T)`` warp of each of its slots.
         rotations: per moving sequence, ``(d, d)`` applied to its SRVFs (row vectors, ``x @ R.T``).
         lambdas: metric weights of the returned layout.
@@ -111,17 +163,7 @@ def combine_many(ref: AlignedSequence, movs: Sequence[AlignedSequence], matches:
                          f"{len(matches)} matchings, {len(gammas)} warps, {len(rotations)} rotations")
     ra = ref.aligned
     slot_parent, slot_depth = ra.slot_parent.tolist(), ra.slot_depth.tolist()
-    targets: list[list[int]] = []
-    for mov, match in zip(movs, matches):
-        slot_of = dict(match)
-        mov_parent = mov.aligned.slot_parent.tolist()
-        for k in range(len(mov_parent)):  # parents first, so a parent's slot exists
-            if k not in slot_of:
-                slot_of[k] = len(slot_parent)
-                parent = slot_of[mov_parent[k]] if mov_parent[k] >= 0 else -1
-                slot_parent.append(parent)
-                slot_depth.append(slot_depth[parent] + 1)
-        targets.append([slot_of[k] for k in range(len(mov_parent))])
+    targets = [open_slots(mov, match, slot_parent, slot_depth) for mov, match in zip(movs, matches)]
     S = len(slot_parent)
     n_r, S_r = ra.q.shape[:2]
     dev = ra.q.device

@@ -1,0 +1,71 @@
+"""Population's union layout (issue 13): a branch the reference lacks opens one slot that later plants share."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from torch4dtree.temporal.population import Population
+from torch4dtree.trees.structures import Trees, TreeSequence
+
+T = 32
+# a stem, two leaves every plant has, and two extra leaves: X (plants a, b) and Y (plants c, d), pointing away
+# from each other so that matching X to Y costs more than leaving both null
+LEAVES = {"L1": (0.35, (1.0, 0.0, 0.3)), "L2": (0.65, (0.0, 1.0, 0.3)),
+          "X": (0.5, (-1.0, 0.0, 0.3)), "Y": (0.8, (0.6, -0.8, 0.3))}
+
+
+def _tree(extra: str, size: float, bend: float) -> list[np.ndarray]:
+    t = np.linspace(0, 1, 20)[:, None]
+    stem = t * np.array([bend, 0.0, 30.0 * size])
+    branches = [stem]
+    for name in ("L1", "L2", extra):
+        s, d = LEAVES[name]
+        d = np.asarray(d) / np.linalg.norm(d)
+        start = stem[0] + s * (stem[-1] - stem[0])
+        branches.append(start + t * d * 10.0 * size)
+    return branches
+
+
+def _plant(name: str, extra: str, size: float, bend: float) -> TreeSequence:
+    frames = [_tree(extra, size * f, bend) for f in (0.8, 1.0)]  # a young and a grown frame, same organs
+    trees = Trees.from_branches(frames, [[-1, 0, 0, 0]] * 2, T=T, dtype=torch.float64)
+    return TreeSequence(trees, torch.tensor([0.0, 1.0], dtype=torch.float64), name=name)
+
+
+@pytest.fixture(scope="module")
+def fitted() -> tuple[Population, list[TreeSequence]]:
+    seqs = [_plant("a", "X", 1.0, 0.0), _plant("b", "X", 1.05, 0.5), _plant("c", "Y", 0.97, -0.4),
+            _plant("d", "Y", 1.02, 0.3)]
+    return Population().fit(seqs), seqs
+
+
+def test_same_extra_branch_of_two_plants_shares_one_slot(fitted):
+    pop, seqs = fitted
+    # stem + L1 + L2 + the reference's extra leaf + ONE slot for the other extra leaf (two plants hold it)
+    assert pop.report_["reference_slots"] == 4
+    assert pop.report_["slots"] == 5
+    # every frame fills every slot but the other group's extra leaf: each plant has 4 of the 5 slots
+    assert pop.layout_.present.sum(1).tolist() == [4] * 8
+    ref = pop.report_["reference"]
+    other = [i for i, s in enumerate(seqs) if (s.name in "ab") != (ref in "ab")]
+    assert pop.layout_.present[[2 * i for i in other], 4].all()
+    # the union representative carries the opened slot (its branch is the other plants' leaf) for transform
+    assert pop.reference_tree().points.shape[0] == 5
+
+
+def test_new_plant_lands_in_an_opened_slot(fitted):
+    pop, _ = fitted
+    extra = "Y" if pop.report_["reference"] in "ab" else "X"  # the leaf the reference lacks
+    enc = pop.transform(_plant("e", extra, 0.99, 0.1))
+    assert enc.aligned.present[:, 4].all()
+    assert float(enc.dropped_sq_norm.max()) < 1e-9
+
+
+def test_union_does_not_depend_on_input_order(fitted):
+    pop, seqs = fitted
+    rev = Population().fit(seqs[::-1])
+    assert rev.report_["reference"] == pop.report_["reference"] and rev.report_["slots"] == pop.report_["slots"]
+    assert torch.allclose(rev.ref_points, pop.ref_points)
+    assert torch.allclose(rev.trajectories.flip(0), pop.trajectories, atol=1e-8)
