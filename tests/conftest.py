@@ -73,3 +73,22 @@ def compiled_kernels():
     from torch4dtree.curves.dp_numba import warm_up
 
     warm_up()
+
+
+@pytest.fixture(scope="session")
+def synthetic_folder(tmp_path_factory):
+    """``make(plants, seed, frames, kind="tomato")``: the dataset folder ``torch4dtree synth`` writes for those
+    arguments, written once per session (tests read it, never write into it)."""
+    from torch4dtree.data import run_synth
+
+    folders: dict[tuple, Path] = {}
+
+    def make(plants: int, seed: int, frames: int, kind: str = "tomato") -> Path:
+        key = (kind, plants, seed, frames)
+        if key not in folders:
+            out = tmp_path_factory.mktemp("synth") / kind
+            run_synth(kind=kind, plants=plants, seed=seed, out=str(out), frames=frames)
+            folders[key] = out
+        return folders[key]
+
+    return make

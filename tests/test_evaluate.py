@@ -13,8 +13,6 @@ import pytest
 from conftest import pheno4d
 
 from torch4dtree.cli.main import main
-from torch4dtree.data import synthetic_dataset
-from torch4dtree.data.writing import write_dataset
 from torch4dtree.evaluate import EvalSettings, evaluate, load_eval_data, sources_of
 from torch4dtree.io.dataset import DatasetError
 
@@ -22,10 +20,8 @@ EPS = ("0.1", "0.05", "0.02", "0.01")
 
 
 @pytest.fixture(scope="module")
-def dataset(tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("eval") / "tomato"
-    write_dataset(synthetic_dataset("tomato", plants=4, seed=5, n_frames=4), out)
-    return out
+def dataset(synthetic_folder) -> Path:
+    return synthetic_folder(4, 5, 4)
 
 
 @pytest.fixture(scope="module")

@@ -92,12 +92,8 @@ def test_ground_metric_is_symmetric_and_the_better_direction() -> None:
 
 
 @pytest.fixture(scope="module")
-def report(tmp_path_factory: pytest.TempPathFactory) -> dict:
-    from torch4dtree.data import synthetic_dataset, write_dataset
-
-    root = tmp_path_factory.mktemp("gen") / "tomato"
-    write_dataset(synthetic_dataset("tomato", plants=5, seed=0, n_frames=5), root)
-    datas = {"synthetic": load_eval_data(root, "synthetic", T=16)}
+def report(synthetic_folder) -> dict:
+    datas = {"synthetic": load_eval_data(synthetic_folder(5, 0, 5), "synthetic", T=16)}
     return gen.run(datas, EvalSettings(T=16, quick=True), False)
 
 

@@ -9,7 +9,6 @@ import pytest
 import torch
 from conftest import pheno4d
 
-from torch4dtree.data import run_synth
 from torch4dtree.evaluate import EvalSettings, load_eval_data, robustness
 from torch4dtree.evaluate.robustness import (
     drop_branches,
@@ -27,11 +26,9 @@ T = 16
 
 
 @pytest.fixture(scope="module")
-def tiny(tmp_path_factory):
+def tiny(synthetic_folder):
     """What ``torch4dtree synth --kind tomato --plants 3 --frames 4`` writes, loaded as the evaluation loads it."""
-    out = tmp_path_factory.mktemp("synth") / "tomato"
-    run_synth(kind="tomato", plants=3, seed=0, out=str(out), frames=4)
-    return load_eval_data(out, "synthetic", T=T)
+    return load_eval_data(synthetic_folder(3, 0, 4), "synthetic", T=T)
 
 
 @pytest.fixture(scope="module")

@@ -9,7 +9,6 @@ import pytest
 import torch
 
 from torch4dtree.curves.warps import random_warp
-from torch4dtree.data import synthetic_dataset, write_dataset
 from torch4dtree.evaluate import EvalSettings, Plant4D, load_eval_data, pairs
 from torch4dtree.evaluate import temporal as table3
 from torch4dtree.evaluate.run import dumps
@@ -19,10 +18,8 @@ SETTINGS = EvalSettings(T=16, quick=True)
 
 
 @pytest.fixture(scope="module")
-def data(tmp_path_factory):
-    root = tmp_path_factory.mktemp("synthetic")
-    write_dataset(synthetic_dataset("tomato", plants=3, seed=5, n_frames=5, T=16, dtype=torch.float64), root)
-    return load_eval_data(root, "synthetic", T=16)
+def data(synthetic_folder):
+    return load_eval_data(synthetic_folder(3, 5, 5), "synthetic", T=16)
 
 
 @pytest.fixture(scope="module")

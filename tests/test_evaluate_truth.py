@@ -8,7 +8,7 @@ import math
 import pytest
 import torch
 
-from torch4dtree.data import IdentityScores, relative_warp, run_synth, synthetic_dataset, synthetic_plant, write_dataset
+from torch4dtree.data import IdentityScores, relative_warp, synthetic_dataset, synthetic_plant, write_dataset
 from torch4dtree.evaluate import EvalData, EvalSettings, load_eval_data, truth
 from torch4dtree.evaluate.run import dumps
 from torch4dtree.trees.registration import register_trees
@@ -17,11 +17,9 @@ T = 16
 
 
 @pytest.fixture(scope="module")
-def tiny(tmp_path_factory):
+def tiny(synthetic_folder):
     """What ``torch4dtree synth --kind tomato --plants 3 --frames 4`` writes, loaded as the evaluation loads it."""
-    out = tmp_path_factory.mktemp("synth") / "tomato"
-    run_synth(kind="tomato", plants=3, seed=0, out=str(out), frames=4)
-    return load_eval_data(out, "synthetic", T=T)
+    return load_eval_data(synthetic_folder(3, 0, 4), "synthetic", T=T)
 
 
 def _in_unit(x: float) -> bool:
