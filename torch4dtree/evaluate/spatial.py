@@ -52,10 +52,9 @@ def consecutive_pairs(data: EvalData, kind: str, settings: EvalSettings) -> list
 
 def _registration_3d(data: EvalData, kind: str, settings: EvalSettings, progress: bool) -> dict[str, Any]:
     before, after, seconds = [], [], []
-    frames = {}
     for plant, k in tqdm(consecutive_pairs(data, kind, settings), desc=f"3D pairs ({data.source}, {kind})",
                          unit="pair", disable=not progress):
-        f = frames.setdefault(plant.name, plant.sequence.frames)
+        f = plant.sequence.frames
         t0 = time.perf_counter()
         reg = register_trees(f[k + 1], f[k], settings.lambdas, "none")
         seconds.append(time.perf_counter() - t0)
