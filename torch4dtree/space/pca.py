@@ -16,7 +16,7 @@ import torch
 from torch import Tensor
 
 from ..curves.srvf import srvf_sq_norm
-from ..trees.aligned import AlignedTrees, Lambdas
+from ..trees.aligned import AlignedTrees, Lambdas, rows_to_trees, segment_lengths, slot_weights
 from ..trees.registration import _check_lambdas
 from ..trees.structures import Trees
 from .fitted import FittedModule, NotFittedError
@@ -173,13 +173,53 @@ class TreePCA(FittedModule):
 
         A slot is present where its decoded branch is longer than ``min_length`` (default
         ``DECODE_MIN_FRACTION`` of the mean's main-branch length) and its parent slot is present; children
-        start on their parent's curve (:meth:`AlignedTrees.to_trees`).
+        start on their parent's curve. The result is ``inverse_transform(coeffs).to_trees(min_length)``
+        (:meth:`AlignedTrees.to_trees`), computed without the SRVFs of the slots that are too short: every
+        slot's length is a quadratic form in the coefficients, so only the (typically a third) long enough
+        slots are decoded to SRVFs and integrated. Differentiable in ``coeffs`` like ``to_trees``.
         """
-        aligned = self.inverse_transform(coeffs)
+        self._check_fitted()
+        k = self.n_components_
+        if coeffs.shape[-1] != k:
+            raise ValueError(f"coefficients must end with k={k}, got shape {tuple(coeffs.shape)}")
         if min_length is None:
             main = self.mean[: self.M * self.d].reshape(self.M, self.d) / math.sqrt(self.lambdas[0] / self.M)
             min_length = DECODE_MIN_FRACTION * float(srvf_sq_norm(main))
-        return aligned.to_trees(eps=min_length)
+        c = coeffs.to(self.mean.dtype).reshape(-1, k)
+        n, S, M, d = c.shape[0], self.num_slots, self.M, self.d
+        MD = M * d
+        w_q, w_s = slot_weights(self.slot_depth, self.lambdas)
+        w_q, w_s = w_q.to(self.mean), w_s.to(self.mean)
+        # the SRVF part in SRVF units (features are q sqrt(w_q / M)): q of slot j = mean_q[j] + c @ comp_q[j]
+        unit = (w_q / M).sqrt()[:, None]
+        mean_q = self.mean[: S * MD].reshape(S, MD) / unit  # (S, M*d)
+        comp_q = torch.empty(S, k, MD, dtype=c.dtype, device=c.device)  # one pass into slot-major order
+        torch.div(self.components[:, : S * MD].reshape(k, S, MD).transpose(0, 1), unit[:, None], out=comp_q)
+        # squared length ||q_j||^2 = sum |q|^2 / M of every (tree, slot), a quadratic form in c: (n, S)
+        gram = comp_q @ comp_q.transpose(1, 2)  # (S, k, k)
+        lin = (comp_q @ mean_q[:, :, None])[..., 0]  # (S, k)
+        sq = mean_q.square().sum(-1) + 2 * c @ lin.T + ((c @ gram) * c).sum(-1).T
+        # a slot within rounding of min_length is decoded and measured exactly (the quadratic form cancels)
+        bound = (mean_q.norm(dim=-1) + c.norm(dim=-1, keepdim=True) * comp_q.norm(dim=(1, 2))).square()
+        margin = 4 * (MD + k * k) * torch.finfo(c.dtype).eps * bound
+        candidate = ((sq + margin) / M).detach() > min_length
+        candidate[:, 0] = True  # the main branch is always kept
+        # SRVFs of the candidate slots only, one small product per slot (rows grouped by slot)
+        slot, tree = candidate.T.nonzero().unbind(1)
+        groups = [(j, rows) for j, rows in enumerate(tree.split(torch.bincount(slot, minlength=S).tolist()))
+                  if len(rows)]
+        if torch.is_grad_enabled() and (c.requires_grad or self.components.requires_grad):
+            q = torch.cat([torch.addmm(mean_q[j], c[rows], comp_q[j]) for j, rows in groups])
+        else:  # straight into one buffer
+            q = c.new_empty(len(tree), MD)
+            for (j, rows), part in zip(groups, q.split([len(r) for _, r in groups])):
+                torch.addmm(mean_q[j], c[rows], comp_q[j], out=part)
+        q = q.reshape(-1, M, d)
+        s = c.new_zeros(n, S)
+        if S > 1:
+            s[:, 1:] = (self.mean[S * MD:] + c @ self.components[:, S * MD:]) / w_s[1:].sqrt()
+        root = self.mean_root.expand(n, d)
+        return rows_to_trees(q, segment_lengths(q), tree * S + slot, s, root, self.slot_parent, min_length)
 
     def _template(self) -> AlignedTrees:
         """An empty tree in the fitted layout (what :meth:`AlignedTrees.from_features` reads the layout from)."""

@@ -19,12 +19,15 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from ..curves.srvf import interpolate_curve, srvf, srvf_sq_norm
+from ..curves.srvf import srvf, srvf_sq_norm
+from .decode_numba import HAVE_NUMBA, place_branches
 from .structures import Trees
 
-__all__ = ["AlignedTrees", "Lambdas", "slot_weights", "subtree_sq_norms"]
+__all__ = ["AlignedTrees", "Lambdas", "rows_to_trees", "segment_lengths", "slot_weights", "subtree_sq_norms"]
 
 Lambdas = tuple[float, float, float]
+# decode with the compiled kernel where it applies (see _compiled); False: always the torch path
+COMPILED_DECODE = True
 
 
 def slot_weights(slot_depth: Tensor, lambdas: Lambdas) -> tuple[Tensor, Tensor]:
@@ -230,49 +233,111 @@ class AlignedTrees:
         differentiable in ``q``, ``s`` and ``root`` given the discrete choices (kept slots, order).
         """
         n, S, M, d = self.q.shape
-        dev = self.q.device
-        slot_depth = _slot_depth(self.slot_parent)
-        depth_slots = [(slot_depth == k).nonzero()[:, 0] for k in range(1, int(slot_depth.max()) + 1)]
-        depth_parents = [self.slot_parent[x] for x in depth_slots]
-        # segment lengths of every branch, |q_k|^2 / M, known before integrating: (n * S, M)
-        # (a product with ones: torch reduces over a last dim of size 3 several times slower)
-        seg_all = (self.q * self.q).reshape(n * S, M, d) @ self.q.new_ones(d) / M
-        # which slots survive: long enough and every ancestor kept (a detached comparison, no grad needed)
-        long_enough = (seg_all.detach().sum(-1) > eps).reshape(n, S)
-        keep = torch.ones(n, S, dtype=torch.bool, device=dev)
-        for slots, parents in zip(depth_slots, depth_parents):
-            keep[:, slots] = keep[:, parents] & long_enough[:, slots]
-        # arc-length fraction of each kept slot's attachment on its parent (K kept slots, parents first)
-        kept = keep.reshape(-1).nonzero()[:, 0]  # (K,) flat index tree * S + slot
-        slot = kept % S
-        parent_flat = kept - slot + self.slot_parent[slot].clamp(min=0)  # (K,) a main branch points to itself
-        sc_all = self.s.to(self.q.dtype).clamp(0, 1).reshape(n * S)
-        arc_table = torch.zeros(n * S, dtype=self.q.dtype, device=dev)
-        arc_table[kept] = torch.where(slot > 0, _arc_fractions(seg_all[parent_flat], sc_all[kept]), 0)
-        # packed depth-first order; from here on everything is in that order
-        order, local_parent, counts = _depth_first_order(keep, arc_table.detach().reshape(n, S), self.slot_parent,
-                                                         depth_slots, depth_parents)
-        slot, tree = order % S, order // S
-        packed_index = torch.full((n * S,), -1, dtype=torch.long, device=dev)
-        packed_index[order] = torch.arange(len(order), device=dev)
-        gp = packed_index[order - slot + self.slot_parent[slot].clamp(min=0)]  # (K,) a main branch: itself
-        depth = slot_depth[slot]
-        sc = sc_all[order]
-        # integrate every branch from the origin at once, then place them layer by layer
-        raw = _integrate(self.q.reshape(n * S, M, d)[order], seg_all[order])  # (K, T, d)
-        start = self.root.to(self.q.dtype)[tree]  # (K, d); main branches start at the root
+        # segment lengths of every branch, |q_k|^2 / M: (n * S, M)
+        seg_all = segment_lengths(self.q.reshape(n * S, M, d))
+        flat = torch.arange(n * S, device=self.q.device)
+        return rows_to_trees(self.q.reshape(n * S, M, d), seg_all, flat, self.s, self.root, self.slot_parent, eps)
+
+
+def segment_lengths(q: Tensor) -> Tensor:
+    """``|q_m|^2 / M`` of SRVFs ``q (R, M, d)``: the segment lengths of their curves, ``(R, M)``."""
+    M, d = q.shape[1:]
+    # a product with ones: torch reduces over a last dim of size 3 several times slower
+    return (q * q) @ q.new_ones(d) / M
+
+
+def rows_to_trees(q: Tensor, seg: Tensor, flat: Tensor, s: Tensor, root: Tensor, slot_parent: Tensor,
+                  eps: float) -> Trees:
+    """:meth:`AlignedTrees.to_trees` from the SRVFs of some of the slots (``R`` rows, any order).
+
+    Args:
+        q: ``(R, M, d)`` SRVFs of ``R`` (tree, slot) rows; ``seg (R, M)`` their :func:`segment_lengths`.
+        flat: ``(R,)`` distinct ``tree * S + slot`` of each row. A slot without a row is too short: a caller that
+            knows which slots are short (e.g. from their lengths alone) skips computing their SRVFs.
+        s: ``(n, S)``, root ``(n, d)``, slot_parent ``(S,)``, eps: as in :meth:`AlignedTrees.to_trees`.
+
+    Returns:
+        the decoded trees (float ``q.dtype``), as :meth:`AlignedTrees.to_trees`.
+    """
+    n, S = s.shape
+    M, d = q.shape[1:]
+    dev = q.device
+    slot_depth = _slot_depth(slot_parent)
+    depth_slots = [(slot_depth == k).nonzero()[:, 0] for k in range(1, int(slot_depth.max()) + 1)]
+    depth_parents = [slot_parent[x] for x in depth_slots]
+    row_of = torch.full((n * S,), -1, dtype=torch.long, device=dev)
+    row_of[flat] = torch.arange(len(flat), device=dev)
+    # which slots survive: long enough and every ancestor kept (a detached comparison, no grad needed)
+    long_enough = torch.zeros(n * S, dtype=torch.bool, device=dev)
+    long_enough[flat] = seg.detach().sum(-1) > eps
+    long_enough = long_enough.reshape(n, S)
+    if S and n:
+        long_enough[:, 0] = True  # the main branch is always kept, even when it has no row
+    keep = long_enough.clone()
+    for slots, parents in zip(depth_slots, depth_parents):
+        keep[:, slots] = keep[:, parents] & long_enough[:, slots]
+    # arc-length fraction of each kept slot's attachment on its parent (K kept slots, parents first)
+    kept = keep.reshape(-1).nonzero()[:, 0]  # (K,) flat index tree * S + slot
+    if bool((row_of[kept] < 0).any()):
+        raise ValueError("every main branch needs a row (its SRVF), even a null one")
+    slot = kept % S
+    parent_flat = kept - slot + slot_parent[slot].clamp(min=0)  # (K,) a main branch points to itself
+    sc_all = s.to(q.dtype).clamp(0, 1).reshape(n * S)
+    arc_table = torch.zeros(n * S, dtype=q.dtype, device=dev)
+    arc_table[kept] = torch.where(slot > 0, _arc_fractions(seg[row_of[parent_flat]], sc_all[kept]), 0)
+    # packed depth-first order; from here on everything is in that order
+    order, local_parent, counts = _depth_first_order(keep, arc_table.detach().reshape(n, S), slot_parent,
+                                                     depth_slots, depth_parents)
+    slot, tree = order % S, order // S
+    packed_index = torch.full((n * S,), -1, dtype=torch.long, device=dev)
+    packed_index[order] = torch.arange(len(order), device=dev)
+    gp = packed_index[order - slot + slot_parent[slot].clamp(min=0)]  # (K,) a main branch: itself
+    depth = slot_depth[slot]
+    sc = sc_all[order]
+    rows = row_of[order]
+    start = root.to(q.dtype)[tree]  # (K, d); main branches start at the root
+    s_out = arc_table[order].clamp(0, 1)
+    if _compiled(q, s, root):
+        pts = place_branches(q, seg, rows, gp, sc, s_out, start)
+    else:
         layers = [(depth == k).nonzero()[:, 0] for k in range(1, len(depth_slots) + 1)]
-        for idx in layers:
-            par = gp[idx]
-            start[idx] = interpolate_curve(raw[par] + start[par, None], sc[idx, None])[:, 0]
-        pts = _resample_arc_length(raw + start[:, None], seg_all[order])
-        # resampling moves a parent's points by chord effects: snap each child back onto its parent,
-        # layer by layer so that a parent is final before its children
-        s_out = arc_table[order].clamp(0, 1)
-        for idx in layers:
-            if len(idx):
-                pts[idx, 0] = interpolate_curve(pts[gp[idx]], s_out[idx, None])[:, 0]
-        return Trees(pts, local_parent, s_out, counts, slot)
+        pts = _place_torch(q, seg, rows, gp, sc, s_out, start, layers)
+    return Trees(pts, local_parent, s_out, counts, slot)
+
+
+def _compiled(q: Tensor, s: Tensor, root: Tensor) -> bool:
+    """Whether :func:`rows_to_trees` places the branches with the compiled kernel: float64 on the CPU, no
+    gradient wanted (the torch path is the differentiable one)."""
+    grad = torch.is_grad_enabled() and (q.requires_grad or s.requires_grad or root.requires_grad)
+    return COMPILED_DECODE and HAVE_NUMBA and q.dtype == torch.float64 and q.device.type == "cpu" and not grad
+
+
+def _place_torch(q: Tensor, seg: Tensor, rows: Tensor, gp: Tensor, sc: Tensor, s_out: Tensor, start: Tensor,
+                 layers: list[Tensor]) -> Tensor:
+    """The branches' points ``(K, T, d)`` in packed order, differentiable (the arguments of
+    :func:`~torch4dtree.trees.decode_numba.place_branches`; ``layers``: packed branches of each layer 1, 2, ...)."""
+    M = q.shape[1]
+    if len(rows) < len(q):  # integrate the kept rows only
+        q, seg, rows = q[rows], seg[rows], torch.arange(len(rows), device=q.device)
+    # every curve from its own origin: its steps q |q| / M and their running sums (the points after the first)
+    steps = _steps(q, seg)  # (R, M, d)
+    ends = steps.cumsum(1)
+    # place the branches layer by layer: a child starts on its parent's curve (before resampling) at s
+    start = start.clone()
+    for idx in layers:
+        par = rows[gp[idx], None]
+        x = sc[idx, None].clamp(0, 1) * M
+        lo = x.detach().floor().clamp(max=M - 1).long()
+        start[idx] = start[gp[idx]] + _curve_points(steps, ends, par, lo, x - lo.to(x.dtype))[:, 0]
+    # resampled uniformly in arc length: T points, gathered in packed order straight from the steps
+    lo, frac = _arc_length_grid(seg[rows])
+    pts = _curve_points(steps, ends, rows[:, None], lo, frac).add_(start[:, None])
+    # resampling moves a parent's points by chord effects: snap each child back onto its parent,
+    # layer by layer so that a parent is final before its children
+    for idx in layers:
+        if len(idx):
+            pts[idx, 0] = _points_at(pts, gp[idx], s_out[idx])
+    return pts
 
 
 def _slot_depth(slot_parent: Tensor) -> Tensor:
@@ -345,33 +410,47 @@ def _depth_first_order(keep: Tensor, arc: Tensor, slot_parent: Tensor, depth_slo
     return order, parent_pos.reshape(-1)[order], counts
 
 
-def _integrate(q: Tensor, seg: Tensor) -> Tensor:
-    """``inverse_srvf(q)`` from the origin, given the segment lengths ``seg = |q|^2 / M``: ``(K, M, d) -> (K, M+1, d)``.
-
-    A step is ``q |q| / M = q sqrt(seg / M)``; the square root is guarded so null segments give zero gradients.
-    """
+def _steps(q: Tensor, seg: Tensor) -> Tensor:
+    """Steps ``q |q| / M = q sqrt(seg / M)`` of the inverse SRVF, given the segment lengths ``seg = |q|^2 / M``:
+    ``(R, M, d)``. The square root is guarded so null segments give zero gradients."""
     M = q.shape[1]
     nonzero = seg > 0
     factor = torch.where(nonzero, (torch.where(nonzero, seg, 1) / M).sqrt(), 0)
-    steps = q * factor.unsqueeze(-1)
-    return torch.cat([torch.zeros_like(steps[:, :1]), steps.cumsum(1)], dim=1)
+    return q * factor.unsqueeze(-1)
 
 
-def _resample_arc_length(points: Tensor, seg: Tensor) -> Tensor:
-    """Polylines ``points (K, T, d)`` with segment lengths ``seg (K, T-1)`` resampled uniformly in arc length.
+def _curve_points(steps: Tensor, ends: Tensor, rows: Tensor, lo: Tensor, frac: Tensor) -> Tensor:
+    """Points ``(m, p, d)`` of polylines from the origin given by their segments ``steps (R, M, d)`` and segment
+    ends ``ends (R, M, d)``: on polyline ``rows (m, 1)``, segment ``lo (m, p)`` at fraction ``frac (m, p)`` of it."""
+    m, p = lo.shape
+    M, d = steps.shape[1:]
+    idx = (rows * M + lo).reshape(-1)
+    end = ends.reshape(-1, d).index_select(0, idx)
+    step = steps.reshape(-1, d).index_select(0, idx)
+    return end.addcmul_(step, (frac - 1).reshape(-1, 1)).reshape(m, p, d)
 
-    A zero-length polyline (all points equal) comes back unchanged.
-    """
-    K, T, d = points.shape
+
+def _points_at(curves: Tensor, rows: Tensor, s: Tensor) -> Tensor:
+    """``interpolate_curve(curves[rows], s)`` without copying the curves: ``curves (K, T, d)``, ``rows, s (m,)`` ->
+    ``(m, d)``."""
+    K, T, d = curves.shape
+    x = s.clamp(0, 1) * (T - 1)
+    lo = x.detach().floor().clamp(max=T - 2).long()
+    flat = curves.reshape(K * T, d)
+    a = flat.index_select(0, rows * T + lo)
+    b = flat.index_select(0, rows * T + lo + 1)
+    return a + (x - lo.to(x.dtype))[:, None] * (b - a)
+
+
+def _arc_length_grid(seg: Tensor) -> tuple[Tensor, Tensor]:
+    """Where the uniform arc-length grid of ``T = M + 1`` points falls on polylines with segment lengths
+    ``seg (K, M)``: segment ``lo (K, T)`` and fraction ``frac (K, T)`` along it. A zero-length polyline gives its
+    first point ``T`` times."""
+    K, M = seg.shape
+    T = M + 1
     cum = torch.cat([torch.zeros_like(seg[:, :1]), seg.cumsum(1)], dim=1)  # (K, T)
-    target = torch.linspace(0, 1, T, dtype=points.dtype, device=points.device) * cum[:, -1:]  # (K, T)
-    hi = torch.searchsorted(cum, target, right=True).clamp(1, T - 1)
-    lo = hi - 1
-    c_lo, c_hi = cum.gather(1, lo), cum.gather(1, hi)
-    width = c_hi - c_lo
+    target = torch.linspace(0, 1, T, dtype=seg.dtype, device=seg.device) * cum[:, -1:]  # (K, T)
+    lo = torch.searchsorted(cum.detach(), target.detach(), right=True).clamp(1, T - 1) - 1
+    c_lo, width = cum.gather(1, lo), seg.gather(1, lo)
     frac = torch.where(width > 0, (target - c_lo) / torch.where(width > 0, width, 1), 0).clamp(0, 1)
-    flat = points.reshape(K * T, d)
-    row = (torch.arange(K, device=points.device) * T)[:, None]
-    p_lo = flat.index_select(0, (row + lo).reshape(-1)).reshape(K, T, d)
-    p_hi = flat.index_select(0, (row + hi).reshape(-1)).reshape(K, T, d)
-    return p_lo + frac.unsqueeze(-1) * (p_hi - p_lo)
+    return lo, frac

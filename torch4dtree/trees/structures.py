@@ -62,7 +62,8 @@ class Trees:
                 raise TreeError(f"{name} must have shape ({N},), got {tuple(getattr(self, name).shape)}")
         if int(self.num_branches.sum()) != N or (self.num_branches < 1).any():
             raise TreeError(f"num_branches {self.num_branches.tolist()} must be >= 1 and sum to {N}")
-        if not torch.isfinite(self.points).all():
+        # a finite sum means every point is finite (inf and NaN propagate); cheaper than an elementwise check
+        if not torch.isfinite(self.points.sum()) and not torch.isfinite(self.points).all():
             bad = int(torch.nonzero(~torch.isfinite(self.points).all(-1).all(-1))[0])
             raise TreeError(f"branch {bad} has non-finite coordinates")
         local = self.local_index
