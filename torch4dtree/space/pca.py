@@ -10,7 +10,7 @@ features, then to trees in the fitted layout.
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, NamedTuple
 
 import torch
 from torch import Tensor
@@ -34,6 +34,20 @@ def check_components(n_components: int | None, variance: float) -> tuple[int | N
     if not 0.0 < variance <= 1.0:
         raise ValueError(f"variance must be in (0, 1], got {variance}")
     return (None if n_components is None else int(n_components)), float(variance)
+
+
+class _SlotTables(NamedTuple):
+    """Per-slot constants of a fitted :class:`TreePCA` for :meth:`TreePCA.decode`, in SRVF units (features are
+    ``q sqrt(w_q / M)``): slot ``j``'s SRVF is ``mean_q[j] + c @ comp_q[j]`` for coefficients ``c (k,)``."""
+
+    mean_q: Tensor  # (S, M*d)
+    comp_q: Tensor  # (S, k, M*d)
+    gram: Tensor  # (S, k, k) comp_q[j] comp_q[j]^T
+    lin: Tensor  # (S, k) comp_q[j] mean_q[j]
+    mean_sq: Tensor  # (S,) |mean_q[j]|^2
+    mean_norm: Tensor  # (S,) |mean_q[j]|
+    comp_norm: Tensor  # (S,) Frobenius norm of comp_q[j]
+    w_s: Tensor  # (S,) metric weight of each slot's s
 
 
 class TreePCA(FittedModule):
@@ -188,19 +202,12 @@ class TreePCA(FittedModule):
         c = coeffs.to(self.mean.dtype).reshape(-1, k)
         n, S, M, d = c.shape[0], self.num_slots, self.M, self.d
         MD = M * d
-        w_q, w_s = slot_weights(self.slot_depth, self.lambdas)
-        w_q, w_s = w_q.to(self.mean), w_s.to(self.mean)
-        # the SRVF part in SRVF units (features are q sqrt(w_q / M)): q of slot j = mean_q[j] + c @ comp_q[j]
-        unit = (w_q / M).sqrt()[:, None]
-        mean_q = self.mean[: S * MD].reshape(S, MD) / unit  # (S, M*d)
-        comp_q = torch.empty(S, k, MD, dtype=c.dtype, device=c.device)  # one pass into slot-major order
-        torch.div(self.components[:, : S * MD].reshape(k, S, MD).transpose(0, 1), unit[:, None], out=comp_q)
+        tab = self._slot_tables()
+        mean_q, comp_q = tab.mean_q, tab.comp_q
         # squared length ||q_j||^2 = sum |q|^2 / M of every (tree, slot), a quadratic form in c: (n, S)
-        gram = comp_q @ comp_q.transpose(1, 2)  # (S, k, k)
-        lin = (comp_q @ mean_q[:, :, None])[..., 0]  # (S, k)
-        sq = mean_q.square().sum(-1) + 2 * c @ lin.T + ((c @ gram) * c).sum(-1).T
+        sq = tab.mean_sq + 2 * c @ tab.lin.T + ((c @ tab.gram) * c).sum(-1).T
         # a slot within rounding of min_length is decoded and measured exactly (the quadratic form cancels)
-        bound = (mean_q.norm(dim=-1) + c.norm(dim=-1, keepdim=True) * comp_q.norm(dim=(1, 2))).square()
+        bound = (tab.mean_norm + c.norm(dim=-1, keepdim=True) * tab.comp_norm).square()
         margin = 4 * (MD + k * k) * torch.finfo(c.dtype).eps * bound
         candidate = ((sq + margin) / M).detach() > min_length
         candidate[:, 0] = True  # the main branch is always kept
@@ -208,7 +215,7 @@ class TreePCA(FittedModule):
         slot, tree = candidate.T.nonzero().unbind(1)
         groups = [(j, rows) for j, rows in enumerate(tree.split(torch.bincount(slot, minlength=S).tolist()))
                   if len(rows)]
-        if torch.is_grad_enabled() and (c.requires_grad or self.components.requires_grad):
+        if torch.is_grad_enabled() and c.requires_grad:
             q = torch.cat([torch.addmm(mean_q[j], c[rows], comp_q[j]) for j, rows in groups])
         else:  # straight into one buffer
             q = c.new_empty(len(tree), MD)
@@ -217,9 +224,29 @@ class TreePCA(FittedModule):
         q = q.reshape(-1, M, d)
         s = c.new_zeros(n, S)
         if S > 1:
-            s[:, 1:] = (self.mean[S * MD:] + c @ self.components[:, S * MD:]) / w_s[1:].sqrt()
+            s[:, 1:] = (self.mean[S * MD:] + c @ self.components[:, S * MD:]) / tab.w_s[1:].sqrt()
         root = self.mean_root.expand(n, d)
         return rows_to_trees(q, segment_lengths(q), tree * S + slot, s, root, self.slot_parent, min_length)
+
+    def _slot_tables(self) -> _SlotTables:
+        """:class:`_SlotTables` of the fit, kept until the fitted buffers change (another tensor, or one modified in
+        place): several decodes of one fit (a geodesic, samples) compute them once."""
+        sources = (self.mean, self.components, self.slot_depth)
+        key = (tuple((id(t), t._version) for t in sources), self.lambdas, self.M, self.d)
+        cached = getattr(self, "_tables", None)
+        if cached is not None and cached[0] == key:
+            return cached[2]
+        S, M, k = self.num_slots, self.M, self.n_components_
+        MD = M * self.d
+        w_q, w_s = (w.to(self.mean) for w in slot_weights(self.slot_depth, self.lambdas))
+        with torch.no_grad():
+            unit = (w_q / M).sqrt()[:, None]
+            mean_q = self.mean[: S * MD].reshape(S, MD) / unit
+            comp_q = (self.components[:, : S * MD].reshape(k, S, MD) / unit).transpose(0, 1).contiguous()
+            tables = _SlotTables(mean_q, comp_q, comp_q @ comp_q.transpose(1, 2), (comp_q @ mean_q[:, :, None])[..., 0],
+                                 mean_q.square().sum(-1), mean_q.norm(dim=-1), comp_q.norm(dim=(1, 2)), w_s)
+        self._tables = (key, sources, tables)  # the sources are held so that their ids stay theirs
+        return tables
 
     def _template(self) -> AlignedTrees:
         """An empty tree in the fitted layout (what :meth:`AlignedTrees.from_features` reads the layout from)."""

@@ -236,16 +236,20 @@ class SpatiotemporalRegistration(NamedTuple):
         Each is decoded at the ``n_t`` common times (in ``A``'s time units); branches keep their slot as ``label``.
         """
         path = geodesic4d(*trajectory_srvf(self.alpha_ref), *trajectory_srvf(self.alpha_mov_registered), steps)
-        return [self._decode(p) for p in path]
+        return self._decode(path)
 
-    def _decode(self, alpha: Tensor) -> TreeSequence:
+    def _decode(self, alphas: Tensor) -> list[TreeSequence]:
+        """``alphas (m, n_t, k)`` -> ``m`` 4D trees, decoded in one batch of ``m * n_t`` trees."""
         t0, t1 = self.time_span_ref
-        times = t0 + self.times.to(torch.float64) * (t1 - t0)
-        return TreeSequence(self.pca.decode(alpha), times.to(self.pca.mean.dtype))
+        times = (t0 + self.times.to(torch.float64) * (t1 - t0)).to(self.pca.mean.dtype)
+        m, n_t = alphas.shape[:2]
+        trees = self.pca.decode(alphas)
+        return [TreeSequence(trees[i * n_t:(i + 1) * n_t], times) for i in range(m)]
 
     def decoded(self) -> tuple[TreeSequence, TreeSequence, TreeSequence]:
         """``A``, ``B`` and ``B`` time-warped onto ``A``, decoded from their trajectories on the common times."""
-        return self._decode(self.alpha_ref), self._decode(self.alpha_mov), self._decode(self.alpha_mov_registered)
+        a, b, b_reg = self._decode(torch.stack([self.alpha_ref, self.alpha_mov, self.alpha_mov_registered]))
+        return a, b, b_reg
 
 
 def _trajectories(layout: AlignedTrees, n_ref: int, ref_times: Tensor, mov_times: Tensor, n_t: int,

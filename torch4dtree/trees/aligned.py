@@ -20,7 +20,7 @@ import torch
 from torch import Tensor
 
 from ..curves.srvf import srvf, srvf_sq_norm
-from .decode_numba import HAVE_NUMBA, place_branches
+from .decode_numba import HAVE_NUMBA, place_branches, segments
 from .structures import Trees
 
 __all__ = ["AlignedTrees", "Lambdas", "rows_to_trees", "segment_lengths", "slot_weights", "subtree_sq_norms"]
@@ -242,6 +242,8 @@ class AlignedTrees:
 def segment_lengths(q: Tensor) -> Tensor:
     """``|q_m|^2 / M`` of SRVFs ``q (R, M, d)``: the segment lengths of their curves, ``(R, M)``."""
     M, d = q.shape[1:]
+    if _compiled(q):
+        return segments(q)
     # a product with ones: torch reduces over a last dim of size 3 several times slower
     return (q * q) @ q.new_ones(d) / M
 
@@ -305,10 +307,11 @@ def rows_to_trees(q: Tensor, seg: Tensor, flat: Tensor, s: Tensor, root: Tensor,
     return Trees(pts, local_parent, s_out, counts, slot)
 
 
-def _compiled(q: Tensor, s: Tensor, root: Tensor) -> bool:
-    """Whether :func:`rows_to_trees` places the branches with the compiled kernel: float64 on the CPU, no
-    gradient wanted (the torch path is the differentiable one)."""
-    grad = torch.is_grad_enabled() and (q.requires_grad or s.requires_grad or root.requires_grad)
+def _compiled(*tensors: Tensor) -> bool:
+    """Whether the compiled kernels (:mod:`.decode_numba`) compute from ``tensors`` (the first one sets dtype and
+    device): float64 on the CPU, no gradient wanted (the torch path is the differentiable one)."""
+    q = tensors[0]
+    grad = torch.is_grad_enabled() and any(x.requires_grad for x in tensors)
     return COMPILED_DECODE and HAVE_NUMBA and q.dtype == torch.float64 and q.device.type == "cpu" and not grad
 
 

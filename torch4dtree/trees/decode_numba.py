@@ -24,10 +24,21 @@ except ImportError:  # pragma: no cover - exercised only without numba
     numba = None
     HAVE_NUMBA = False
 
-__all__ = ["HAVE_NUMBA", "place_branches"]
+__all__ = ["HAVE_NUMBA", "place_branches", "segments"]
 
 
 if HAVE_NUMBA:
+
+    @numba.njit(cache=True, boundscheck=False)
+    def _nb_segments(q: np.ndarray, seg: np.ndarray) -> None:
+        """``seg (R, M) = |q|^2 / M`` of ``q (R, M, d)`` (torch reduces a last dim of 3 slowly, and via a temporary)."""
+        R, M, d = q.shape
+        for r in range(R):
+            for m in range(M):
+                acc = 0.0
+                for c in range(d):
+                    acc += q[r, m, c] * q[r, m, c]
+                seg[r, m] = acc / M
 
     @numba.njit(cache=True, boundscheck=False)
     def _nb_place(q: np.ndarray, seg: np.ndarray, rows: np.ndarray, gp: np.ndarray, sc: np.ndarray,
@@ -99,6 +110,13 @@ if HAVE_NUMBA:
                 fr = x - lo
                 for c in range(d):
                     pts[i, 0, c] = pts[p, lo, c] + fr * (pts[p, lo + 1, c] - pts[p, lo, c])
+
+
+def segments(q: Tensor) -> Tensor:
+    """``|q|^2 / M`` of SRVFs ``q (R, M, d)`` (float64, CPU, no gradients): ``(R, M)``."""
+    seg = torch.empty(q.shape[:2], dtype=q.dtype)
+    _nb_segments(q.detach().contiguous().numpy(), seg.numpy())
+    return seg
 
 
 def place_branches(q: Tensor, seg: Tensor, rows: Tensor, gp: Tensor, sc: Tensor, s_out: Tensor,

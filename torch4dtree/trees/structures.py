@@ -206,6 +206,10 @@ class Trees:
             index = list(range(self.num_trees))[index]
         idx = torch.as_tensor(index, dtype=torch.long).reshape(-1).tolist()
         ptr = self.ptr.tolist()
+        if idx and idx == list(range(idx[0], idx[0] + len(idx))) and idx[0] >= 0:  # a run of trees: views
+            a, b = ptr[idx[0]], ptr[idx[-1] + 1]
+            return Trees(self.points[a:b], self.parent[a:b], self.s[a:b], self.num_branches[idx[0]:idx[-1] + 1],
+                         self.label[a:b])
         rows = [i for t in idx for i in range(ptr[t], ptr[t + 1])]
         sel = torch.tensor(rows, dtype=torch.long, device=self.device)
         return Trees(
