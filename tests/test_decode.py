@@ -352,3 +352,78 @@ def test_empty_batch_and_mixed_dtypes() -> None:
     out, ref = b.to_trees(0.05), a.to_trees(0.05)
     assert out.points.dtype == out.s.dtype == torch.float32
     torch.testing.assert_close(out.points, ref.points.float(), atol=1e-4, rtol=0)
+
+
+# ------------------------------------------------------------------------------ fast paths
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_compiled_placement_matches_the_torch_path(seed: int, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The compiled kernel (no gradient, float64) and the differentiable torch code place branches alike."""
+    from torch4dtree.trees import aligned
+
+    if not aligned.HAVE_NUMBA:
+        pytest.skip("numba is not installed")
+    a = random_aligned(torch.Generator().manual_seed(seed), n=9, S=30, eps=0.05)
+    assert aligned._compiled(a.q, a.s, a.root)
+    compiled = a.to_trees(0.05)
+    monkeypatch.setattr(aligned, "COMPILED_DECODE", False)
+    assert_same_trees(compiled, a.to_trees(0.05), atol=1e-12)
+    assert compiled.depth.max() >= 2 and compiled.num_branches.min() < 30
+
+
+def test_pca_decode_matches_to_trees_where_lengths_cancel() -> None:
+    """``TreePCA.decode`` (lengths as quadratic forms in the coefficients, only long slots integrated) gives
+    ``inverse_transform(c).to_trees``, also for a branch ~1e-6 as long as its slot's mean, right at the threshold,
+    where the quadratic form cancels: its relative error there is far above the band around the threshold tried."""
+    from torch4dtree.space.pca import TreePCA
+
+    gen = torch.Generator().manual_seed(4)
+    a = random_aligned(gen, n=8, S=12, eps=0.05)
+    j = next(k for k in range(1, 12) if int(a.slot_parent[k]) == 0 and bool(a.present[1:, k].all()))
+    q = a.q.clone()
+    q[:, 0] = torch.randn(8, 1, 3, generator=gen, dtype=q.dtype)  # no null main branch (children on rounding noise)
+    q[0, j] = 1e-6 * q[1, j]  # tree 0's branch in slot j: tiny, the others' of full size
+    # siblings at distinct s: a tie reconstructed from the PCA is one up to rounding, ordered by rounding
+    s = torch.rand(8, 12, generator=gen, dtype=q.dtype)
+    a = AlignedTrees(q, s, a.present, a.root, a.slot_parent, a.slot_depth, a.source)
+    pca = TreePCA(n_components=7).fit(a)
+    c = pca.transform(a)
+    L = float(srvf_sq_norm(pca.inverse_transform(c[:1]).q[0, j]))
+    for eps, kept in ((L * (1 - 1e-6), True), (L * (1 + 1e-6), False), (0.05, None)):
+        new, old = pca.decode(c, eps), pca.inverse_transform(c).to_trees(eps)
+        # the tiny branch itself is known to ~1e-16 / 1e-6 relative (rounding of the full-size terms that cancel):
+        # so are the arc fractions of its children
+        assert_same_trees(new, old, atol=1e-9)
+        if kept is not None:
+            assert (j in new[0].label.tolist()) == kept
+    default = pca.decode(c)  # the default threshold (a fraction of the mean's main branch)
+    assert default.num_trees == 8 and bool(torch.isfinite(default.points).all())
+    # gradients flow to the coefficients through the torch path
+    cg = c.clone().requires_grad_(True)
+    pca.decode(cg, 0.05).points.square().sum().backward()
+    assert cg.grad is not None and bool(torch.isfinite(cg.grad).all()) and float(cg.grad.abs().sum()) > 0
+
+
+def test_pca_decode_tables_follow_the_fit() -> None:
+    """The cached per-slot tables are rebuilt when the PCA is refitted, cast or modified in place."""
+    from torch4dtree.space.pca import TreePCA
+
+    gen = torch.Generator().manual_seed(6)
+    a, b = random_aligned(gen, n=6, S=8), random_aligned(gen, n=6, S=8)
+    b = AlignedTrees(b.q, b.s, b.present, b.root, a.slot_parent, a.slot_depth, b.source)
+    pca = TreePCA(n_components=4).fit(a)
+    c = pca.transform(a)
+    pca.decode(c, 0.05)
+    for change in (lambda: pca.fit(b), lambda: pca.mean.mul_(0.5), lambda: pca.to(torch.float32).to(torch.float64)):
+        change()
+        assert_same_trees(pca.decode(c, 0.05), pca.inverse_transform(c).to_trees(0.05), atol=1e-10)
+
+
+def test_a_run_of_trees_is_sliced_like_a_list() -> None:
+    trees = random_aligned(torch.Generator().manual_seed(7), n=6, S=10).to_trees(0.05)
+    for index in (slice(1, 4), [2, 3, 4], slice(0, 6), [5]):
+        listed = list(range(6))[index] if isinstance(index, slice) else index
+        got = trees[index]
+        want = Trees.cat([trees[[i]] for i in listed])
+        assert_same_trees(got, want, atol=0)
