@@ -20,7 +20,7 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
-from ..curves.register import dp_warp
+from ..curves.register import _pick_backend, _register_curves_numba, _settings, dp_warp
 from ..curves.srvf import interpolate_curve, inverse_srvf, srvf, srvf_sq_distance, uniform_grid
 
 __all__ = ["TemporalRegistration", "geodesic4d", "register_trajectories", "time_warp_trajectory"]
@@ -34,6 +34,8 @@ __all__ = ["TemporalRegistration", "geodesic4d", "register_trajectories", "time_
 # (max 0.008), which cost about the same (the DP dominates).
 NEIGHBOURHOOD = 4
 REFINE = 16
+BAND_NEIGHBOURHOOD = 5  # steps of the banded DPs (only with band=...): dp_warp's default
+_UP = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)  # the kernel's vertical axis (unused without rotation)
 
 
 class TemporalRegistration(NamedTuple):
@@ -96,17 +98,26 @@ def register_trajectories(alpha_ref: Tensor, alpha_mov: Tensor, neighbourhood: i
     lead, (n_t, k) = alpha_ref.shape[:-2], alpha_ref.shape[-2:]
     ref = alpha_ref.reshape(-1, n_t, k)
     mov = alpha_mov.reshape(-1, n_t, k).to(ref.dtype)
-    q_ref, q_mov = srvf(ref), srvf(mov)
+    q_ref, q_mov = srvf(torch.stack([ref, mov])).unbind(0)  # one call: these are small, the overhead counts
+    e_before = srvf_sq_distance(q_ref, q_mov)
+    grad = torch.is_grad_enabled() and (ref.requires_grad or mov.requires_grad)
     if ref.shape[0] == 0:
-        warp = ref.new_zeros(0, n_t)
+        warp, registered, q_reg, e_after = ref.new_zeros(0, n_t), mov, q_mov, e_before
+    elif not grad and _pick_backend(backend, ref) == "numba":
+        # no gradient wanted: warp, registered trajectory, its SRVF and energy in one compiled call (for one pair
+        # the torch operations around the DP cost more than the DP). The kernel translates the registered curve
+        # to the reference's start; the trajectory keeps its own (xi(0) = 0).
+        cfg = _settings(neighbourhood, band, coarse, BAND_NEIGHBOURHOOD, 1, 1, 0.0, refine, 1)  # as dp_warp's
+        reg = _register_curves_numba(mov, ref, False, "none", _UP.to(ref.dtype), cfg)
+        warp, q_reg, e_after = reg.gamma, reg.q_registered, reg.energy
+        registered = reg.registered + (mov[:, :1] - ref[:, :1])
     else:
         warp = dp_warp(q_ref.detach(), q_mov.detach(), neighbourhood=neighbourhood, band=band, coarse=coarse,
-                       refine=refine, backend=backend).gamma.to(ref.dtype)
+                       band_neighbourhood=BAND_NEIGHBOURHOOD, refine=refine, backend=backend).gamma.to(ref.dtype)
+        registered = interpolate_curve(mov, warp)
+        q_reg = srvf(registered)
+        e_after = srvf_sq_distance(q_ref, q_reg)
     start_sq = (ref[:, 0] - mov[:, 0]).square().sum(-1)
-    e_before = srvf_sq_distance(q_ref, q_mov)
-    registered = interpolate_curve(mov, warp)
-    q_reg = srvf(registered)
-    e_after = srvf_sq_distance(q_ref, q_reg)
     # the DP never returns worse than the identity; this guards the recomputed (float) energy too
     worse = e_after > e_before
     if bool(worse.any()):
@@ -115,8 +126,9 @@ def register_trajectories(alpha_ref: Tensor, alpha_mov: Tensor, neighbourhood: i
         registered = torch.where(worse[:, None, None], mov, registered)
         q_reg = torch.where(worse[:, None, None], q_mov, q_reg)
         e_after = torch.where(worse, e_before, e_after)
+    dist, dist_before = _norm(start_sq + torch.stack([e_after, e_before])).unbind(0)
     return TemporalRegistration(
-        warp.reshape(*lead, n_t), _norm(start_sq + e_after).reshape(lead), _norm(start_sq + e_before).reshape(lead),
+        warp.reshape(*lead, n_t), dist.reshape(lead), dist_before.reshape(lead),
         registered.reshape(*lead, n_t, k), q_reg.reshape(*lead, n_t - 1, k),
     )
 
