@@ -119,7 +119,7 @@ def ratios(result: dict[str, Any]) -> dict[str, dict[str, Any]]:
         "0.025 s most likely covers; it does not say)")
     out["4d_geodesic_decoded_vs_paper"] = _ratio(
         _get(fourd, "tomato", "decoded_geodesic_seconds"), PAPER_4D["geodesic"], paper,
-        "the same decoded to 3D trees at every common time (5 x 32 trees)")
+        "the same decoded to 3D trees at every common time (5 x 32 trees; median of 10 calls after the first)")
     return out
 
 

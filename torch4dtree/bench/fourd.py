@@ -21,6 +21,7 @@ from .trees import default_data_root
 
 PAPER_SECONDS = {"tomato_pair": 235.0, "maize_pair": 17.0, "temporal": (0.006, 0.037), "geodesic": 0.025}
 GEODESIC_REPEATS = 100  # the trajectory geodesic takes well under a millisecond: time it over many runs
+DECODED_REPEATS = 10  # decoded geodesics timed after the first (median)
 
 
 def _plants(root: Path, kind: str, source: str, T: int) -> list:
@@ -44,9 +45,17 @@ def benchmark_4d(root: str | Path | None = None, T: int = 64, source: str = "mat
         t0 = time.perf_counter()
         res = register4d(plants[0], plants[1])
         pair = time.perf_counter() - t0
+        # the first decode of a process also loads the compiled decode kernel (numba's disk cache) and builds the
+        # PCA's per-slot tables; the figure is the median of the calls after it (the first is reported too)
         t0 = time.perf_counter()
         path = res.geodesic(5)
-        geo = time.perf_counter() - t0
+        geo_first = time.perf_counter() - t0
+        runs = []
+        for _ in range(DECODED_REPEATS):
+            t0 = time.perf_counter()
+            res.geodesic(5)
+            runs.append(time.perf_counter() - t0)
+        geo = statistics.median(runs)
         # the geodesic itself (5 trajectories in the tree space), as the paper computes it, without decoding
         ends = (*trajectory_srvf(res.alpha_ref), *trajectory_srvf(res.alpha_mov_registered))
         t0 = time.perf_counter()
@@ -56,7 +65,8 @@ def benchmark_4d(root: str | Path | None = None, T: int = 64, source: str = "mat
         row = {"pair": [plants[0].name, plants[1].name], "pair_seconds": pair, "stage_seconds": res.seconds,
                "speedup_vs_paper": PAPER_SECONDS[f"{kind}_pair"] / pair, "distances": [
                    res.distance_before, res.distance_after_spatial, res.distance_after_temporal],
-               "decoded_geodesic_seconds": geo, "geodesic_trees": sum(len(s) for s in path),
+               "decoded_geodesic_seconds": geo, "decoded_geodesic_first_call_seconds": geo_first,
+               "geodesic_trees": sum(len(s) for s in path), "geodesic_branches": sum(len(s.frames.s) for s in path),
                "trajectory_geodesic_seconds": geo_traj}
         if all_pairs:
             t0 = time.perf_counter()
