@@ -18,8 +18,11 @@ def run(args: argparse.Namespace) -> int:
     if not HAVE_NUMBA:
         print("numba is not installed: registration uses the torch backend, nothing to compile")
         return 0
+    from ..trees.decode_numba import warm_up as warm_up_decode
+
     t0 = time.perf_counter()
     compiled = warm_up()
+    warm_up_decode()  # the tree decoding kernels (small: seconds cold)
     seconds = time.perf_counter() - t0
     if compiled is None:
         print(f"registration kernels ready (loaded from the cache in {seconds:.1f} s)")

@@ -24,7 +24,7 @@ except ImportError:  # pragma: no cover - exercised only without numba
     numba = None
     HAVE_NUMBA = False
 
-__all__ = ["HAVE_NUMBA", "place_branches", "segments"]
+__all__ = ["HAVE_NUMBA", "place_branches", "segments", "warm_up"]
 
 
 if HAVE_NUMBA:
@@ -127,3 +127,11 @@ def place_branches(q: Tensor, seg: Tensor, rows: Tensor, gp: Tensor, sc: Tensor,
     arr = [x.detach().contiguous().numpy() for x in (q, seg, rows, gp, sc, s_out)]
     _nb_place(*arr, start.detach().clone().numpy(), pts.numpy())
     return pts
+
+
+def warm_up() -> None:
+    """Load the kernels from numba's disk cache, or compile them (seconds, once after installing or updating)."""
+    if HAVE_NUMBA:
+        q = torch.zeros(2, 2, 3, dtype=torch.float64)
+        s = torch.zeros(2, dtype=torch.float64)
+        place_branches(q, segments(q), torch.arange(2), torch.zeros(2, dtype=torch.long), s, s, q[:, 0])
