@@ -372,12 +372,15 @@ def test_compiled_placement_matches_the_torch_path(seed: int, monkeypatch: pytes
     assert compiled.depth.max() >= 2 and compiled.num_branches.min() < 30
 
 
-def test_pca_decode_matches_to_trees_where_lengths_cancel() -> None:
+@pytest.mark.parametrize("compiled", [True, False])
+def test_pca_decode_matches_to_trees_where_lengths_cancel(compiled: bool, monkeypatch: pytest.MonkeyPatch) -> None:
     """``TreePCA.decode`` (lengths as quadratic forms in the coefficients, only long slots integrated) gives
     ``inverse_transform(c).to_trees``, also for a branch ~1e-6 as long as its slot's mean, right at the threshold,
     where the quadratic form cancels: its relative error there is far above the band around the threshold tried."""
     from torch4dtree.space.pca import TreePCA
+    from torch4dtree.trees import aligned
 
+    monkeypatch.setattr(aligned, "COMPILED_DECODE", compiled)
     gen = torch.Generator().manual_seed(4)
     a = random_aligned(gen, n=8, S=12, eps=0.05)
     j = next(k for k in range(1, 12) if int(a.slot_parent[k]) == 0 and bool(a.present[1:, k].all()))

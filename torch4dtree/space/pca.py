@@ -16,7 +16,7 @@ import torch
 from torch import Tensor
 
 from ..curves.srvf import srvf_sq_norm
-from ..trees.aligned import AlignedTrees, Lambdas, rows_to_trees, segment_lengths, slot_weights
+from ..trees.aligned import AlignedTrees, Lambdas, SlotRows, rows_to_trees, slot_weights
 from ..trees.registration import _check_lambdas
 from ..trees.structures import Trees
 from .fitted import FittedModule, NotFittedError
@@ -203,30 +203,22 @@ class TreePCA(FittedModule):
         n, S, M, d = c.shape[0], self.num_slots, self.M, self.d
         MD = M * d
         tab = self._slot_tables()
-        mean_q, comp_q = tab.mean_q, tab.comp_q
         # squared length ||q_j||^2 = sum |q|^2 / M of every (tree, slot), a quadratic form in c: (n, S)
-        sq = tab.mean_sq + 2 * c @ tab.lin.T + ((c @ tab.gram) * c).sum(-1).T
+        cg = (c @ tab.gram.transpose(0, 1).reshape(k, S * k)).reshape(n, S, k)  # c^T gram_j for every slot j
+        sq = tab.mean_sq + 2 * c @ tab.lin.T + (cg * c[:, None]).sum(-1)
         # a slot within rounding of min_length is decoded and measured exactly (the quadratic form cancels)
         bound = (tab.mean_norm + c.norm(dim=-1, keepdim=True) * tab.comp_norm).square()
         margin = 4 * (MD + k * k) * torch.finfo(c.dtype).eps * bound
         candidate = ((sq + margin) / M).detach() > min_length
         candidate[:, 0] = True  # the main branch is always kept
-        # SRVFs of the candidate slots only, one small product per slot (rows grouped by slot)
+        # SRVFs of the candidate slots only (rows grouped by slot)
         slot, tree = candidate.T.nonzero().unbind(1)
-        groups = [(j, rows) for j, rows in enumerate(tree.split(torch.bincount(slot, minlength=S).tolist()))
-                  if len(rows)]
-        if torch.is_grad_enabled() and c.requires_grad:
-            q = torch.cat([torch.addmm(mean_q[j], c[rows], comp_q[j]) for j, rows in groups])
-        else:  # straight into one buffer
-            q = c.new_empty(len(tree), MD)
-            for (j, rows), part in zip(groups, q.split([len(r) for _, r in groups])):
-                torch.addmm(mean_q[j], c[rows], comp_q[j], out=part)
-        q = q.reshape(-1, M, d)
+        rows = SlotRows(c[tree], slot, tab.mean_q, tab.comp_q)
         s = c.new_zeros(n, S)
         if S > 1:
             s[:, 1:] = (self.mean[S * MD:] + c @ self.components[:, S * MD:]) / tab.w_s[1:].sqrt()
         root = self.mean_root.expand(n, d)
-        return rows_to_trees(q, segment_lengths(q), tree * S + slot, s, root, self.slot_parent, min_length)
+        return rows_to_trees(rows, tree * S + slot, s, root, self.slot_parent, min_length)
 
     def _slot_tables(self) -> _SlotTables:
         """:class:`_SlotTables` of the fit, kept until the fitted buffers change (another tensor, or one modified in

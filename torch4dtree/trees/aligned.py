@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import torch
 from torch import Tensor
@@ -23,7 +24,8 @@ from ..curves.srvf import srvf, srvf_sq_norm
 from .decode_numba import HAVE_NUMBA, place_branches, segments
 from .structures import Trees
 
-__all__ = ["AlignedTrees", "Lambdas", "rows_to_trees", "segment_lengths", "slot_weights", "subtree_sq_norms"]
+__all__ = ["AlignedTrees", "Lambdas", "SlotRows", "rows_to_trees", "segment_lengths", "slot_weights",
+           "subtree_sq_norms"]
 
 Lambdas = tuple[float, float, float]
 # decode with the compiled kernel where it applies (see _compiled); False: always the torch path
@@ -233,37 +235,74 @@ class AlignedTrees:
         differentiable in ``q``, ``s`` and ``root`` given the discrete choices (kept slots, order).
         """
         n, S, M, d = self.q.shape
-        # segment lengths of every branch, |q_k|^2 / M: (n * S, M)
-        seg_all = segment_lengths(self.q.reshape(n * S, M, d))
         flat = torch.arange(n * S, device=self.q.device)
-        return rows_to_trees(self.q.reshape(n * S, M, d), seg_all, flat, self.s, self.root, self.slot_parent, eps)
+        return rows_to_trees(SlotRows.of(self.q.reshape(n * S, M, d)), flat, self.s, self.root, self.slot_parent, eps)
+
+
+class SlotRows(NamedTuple):
+    """SRVFs of ``R`` (tree, slot) rows, factored: row ``r`` is ``mean[slot[r]] + c[r] @ comp[slot[r]]`` (flat,
+    ``M*d`` values), as a PCA decodes them (:meth:`torch4dtree.space.TreePCA.decode`); ``slot`` None: row ``r`` is
+    ``mean[r]`` (``k = 0``, the SRVFs themselves, :meth:`of`). Rows are grouped by slot, in increasing order.
+
+    The compiled decode computes each row where it needs it instead of storing them all (:mod:`.decode_numba`).
+    """
+
+    c: Tensor  # (R, k)
+    slot: Tensor | None  # (R,) long
+    mean: Tensor  # (S', M*d)
+    comp: Tensor  # (S', k, M*d)
+
+    @staticmethod
+    def of(q: Tensor) -> SlotRows:
+        """The rows of SRVFs ``q (R, M, d)`` themselves."""
+        R, MD = q.shape[0], q.shape[1] * q.shape[2]
+        return SlotRows(q.new_zeros(R, 0), None, q.reshape(R, MD), q.new_zeros(R, 0, MD))
+
+    def dense(self, d: int) -> Tensor:
+        """The SRVFs ``(R, M, d)`` (differentiable in ``c``, ``mean`` and ``comp``)."""
+        R, MD = len(self.c), self.mean.shape[1]
+        if self.slot is None:
+            return self.mean.reshape(R, MD // d, d)
+        counts = torch.bincount(self.slot, minlength=len(self.mean)).tolist()
+        groups = [(j, cj) for j, cj in enumerate(self.c.split(counts)) if len(cj)]  # one small product per slot
+        if torch.is_grad_enabled() and any(x.requires_grad for x in (self.c, self.mean, self.comp)):
+            q = torch.cat([torch.addmm(self.mean[j], cj, self.comp[j]) for j, cj in groups])
+        else:  # straight into one buffer
+            q = self.c.new_empty(R, MD)
+            for (j, cj), part in zip(groups, q.split([len(cj) for _, cj in groups])):
+                torch.addmm(self.mean[j], cj, self.comp[j], out=part)
+        return q.reshape(R, MD // d, d)
 
 
 def segment_lengths(q: Tensor) -> Tensor:
     """``|q_m|^2 / M`` of SRVFs ``q (R, M, d)``: the segment lengths of their curves, ``(R, M)``."""
     M, d = q.shape[1:]
-    if _compiled(q):
-        return segments(q)
     # a product with ones: torch reduces over a last dim of size 3 several times slower
     return (q * q) @ q.new_ones(d) / M
 
 
-def rows_to_trees(q: Tensor, seg: Tensor, flat: Tensor, s: Tensor, root: Tensor, slot_parent: Tensor,
-                  eps: float) -> Trees:
-    """:meth:`AlignedTrees.to_trees` from the SRVFs of some of the slots (``R`` rows, any order).
+def rows_to_trees(srvfs: SlotRows, flat: Tensor, s: Tensor, root: Tensor, slot_parent: Tensor, eps: float) -> Trees:
+    """:meth:`AlignedTrees.to_trees` from the SRVFs of some of the slots (``R`` rows).
 
     Args:
-        q: ``(R, M, d)`` SRVFs of ``R`` (tree, slot) rows; ``seg (R, M)`` their :func:`segment_lengths`.
+        srvfs: the SRVFs of ``R`` (tree, slot) rows (``M*d`` values each).
         flat: ``(R,)`` distinct ``tree * S + slot`` of each row. A slot without a row is too short: a caller that
             knows which slots are short (e.g. from their lengths alone) skips computing their SRVFs.
         s: ``(n, S)``, root ``(n, d)``, slot_parent ``(S,)``, eps: as in :meth:`AlignedTrees.to_trees`.
 
     Returns:
-        the decoded trees (float ``q.dtype``), as :meth:`AlignedTrees.to_trees`.
+        the decoded trees (float ``srvfs.mean.dtype``), as :meth:`AlignedTrees.to_trees`.
     """
     n, S = s.shape
-    M, d = q.shape[1:]
-    dev = q.device
+    d = root.shape[1]
+    M = srvfs.mean.shape[1] // d
+    dev = srvfs.mean.device
+    compiled = _compiled(srvfs.mean, srvfs.c, srvfs.comp, s, root)
+    if compiled:
+        seg = segments(srvfs, M)  # (R, M), the SRVFs themselves are never stored
+    else:
+        q = srvfs.dense(d)
+        seg = segment_lengths(q)
     slot_depth = _slot_depth(slot_parent)
     depth_slots = [(slot_depth == k).nonzero()[:, 0] for k in range(1, int(slot_depth.max()) + 1)]
     depth_parents = [slot_parent[x] for x in depth_slots]
@@ -284,9 +323,9 @@ def rows_to_trees(q: Tensor, seg: Tensor, flat: Tensor, s: Tensor, root: Tensor,
         raise ValueError("every main branch needs a row (its SRVF), even a null one")
     slot = kept % S
     parent_flat = kept - slot + slot_parent[slot].clamp(min=0)  # (K,) a main branch points to itself
-    sc_all = s.to(q.dtype).clamp(0, 1).reshape(n * S)
-    arc_table = torch.zeros(n * S, dtype=q.dtype, device=dev)
-    arc_table[kept] = torch.where(slot > 0, _arc_fractions(seg[row_of[parent_flat]], sc_all[kept]), 0)
+    sc_all = s.to(seg.dtype).clamp(0, 1).reshape(n * S)
+    arc_table = torch.zeros(n * S, dtype=seg.dtype, device=dev)
+    arc_table[kept] = torch.where(slot > 0, _arc_fractions(seg, row_of[parent_flat], sc_all[kept]), 0)
     # packed depth-first order; from here on everything is in that order
     order, local_parent, counts = _depth_first_order(keep, arc_table.detach().reshape(n, S), slot_parent,
                                                      depth_slots, depth_parents)
@@ -297,10 +336,10 @@ def rows_to_trees(q: Tensor, seg: Tensor, flat: Tensor, s: Tensor, root: Tensor,
     depth = slot_depth[slot]
     sc = sc_all[order]
     rows = row_of[order]
-    start = root.to(q.dtype)[tree]  # (K, d); main branches start at the root
+    start = root.to(seg.dtype)[tree]  # (K, d); main branches start at the root
     s_out = arc_table[order].clamp(0, 1)
-    if _compiled(q, s, root):
-        pts = place_branches(q, seg, rows, gp, sc, s_out, start)
+    if compiled:
+        pts = place_branches(srvfs, seg, rows, gp, sc, s_out, start)
     else:
         layers = [(depth == k).nonzero()[:, 0] for k in range(1, len(depth_slots) + 1)]
         pts = _place_torch(q, seg, rows, gp, sc, s_out, start, layers)
@@ -352,17 +391,21 @@ def _slot_depth(slot_parent: Tensor) -> Tensor:
     return torch.tensor(depth, dtype=torch.long, device=slot_parent.device)
 
 
-def _arc_fractions(seg: Tensor, s: Tensor) -> Tensor:
-    """Arc-length fraction of the point at parameter ``s (...)`` in [0, 1] of polylines with segment lengths
-    ``seg (..., T-1)`` (on the uniform parameter grid). A zero-length polyline gives ``s`` back.
+def _arc_fractions(seg: Tensor, rows: Tensor, s: Tensor) -> Tensor:
+    """Arc-length fraction of the point at parameter ``s (m,)`` in [0, 1] of polylines ``rows (m,)`` of the segment
+    lengths ``seg (R, M)`` (on the uniform parameter grid). A zero-length polyline gives ``s`` back.
+
+    Running sums of each row once, then two gathers per point (rows are shared: siblings have one parent).
     """
-    T = seg.shape[-1] + 1
-    cum = torch.cat([torch.zeros_like(seg[..., :1]), seg.cumsum(-1)], dim=-1)  # (..., T)
-    total = cum[..., -1]  # not seg.sum(): s = 1 must give exactly 1
-    x = s * (T - 1)
-    lo = x.detach().floor().clamp(0, T - 2).long().unsqueeze(-1)
-    frac = x - lo[..., 0].to(x.dtype)
-    at = cum.gather(-1, lo)[..., 0] + frac * seg.gather(-1, lo)[..., 0]
+    M = seg.shape[1]
+    cum = seg.cumsum(1)  # (R, M): the arc length at the end of each segment
+    x = s * M
+    lo = x.detach().floor().clamp(0, M - 1).long()
+    frac = x - lo.to(x.dtype)
+    idx = rows * M + lo
+    # start of segment lo plus frac of it; s = 0 and s = 1 give exactly 0 and the total
+    at = cum.reshape(-1)[idx] - (1 - frac) * seg.reshape(-1)[idx]
+    total = cum[rows, -1]
     positive = total > 0
     return torch.where(positive, (at / torch.where(positive, total, 1)).clamp(0, 1), s)
 
