@@ -20,7 +20,7 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
-from ..curves.register import _pick_backend, _register_curves_numba, _settings, dp_warp
+from ..curves.register import _pick_backend, _register_numba, _settings, dp_warp
 from ..curves.srvf import interpolate_curve, inverse_srvf, srvf, srvf_sq_distance, uniform_grid
 
 __all__ = ["TemporalRegistration", "geodesic4d", "register_trajectories", "time_warp_trajectory"]
@@ -98,25 +98,21 @@ def register_trajectories(alpha_ref: Tensor, alpha_mov: Tensor, neighbourhood: i
     lead, (n_t, k) = alpha_ref.shape[:-2], alpha_ref.shape[-2:]
     ref = alpha_ref.reshape(-1, n_t, k)
     mov = alpha_mov.reshape(-1, n_t, k).to(ref.dtype)
-    q_ref, q_mov = srvf(torch.stack([ref, mov])).unbind(0)  # one call: these are small, the overhead counts
+    q_ref, q_mov = srvf(ref), srvf(mov)
     e_before = srvf_sq_distance(q_ref, q_mov)
-    grad = torch.is_grad_enabled() and (ref.requires_grad or mov.requires_grad)
     if ref.shape[0] == 0:
-        warp, registered, q_reg, e_after = ref.new_zeros(0, n_t), mov, q_mov, e_before
-    elif not grad and _pick_backend(backend, ref) == "numba":
-        # no gradient wanted: warp, registered trajectory, its SRVF and energy in one compiled call (for one pair
-        # the torch operations around the DP cost more than the DP). The kernel translates the registered curve
-        # to the reference's start; the trajectory keeps its own (xi(0) = 0).
+        warp = ref.new_zeros(0, n_t)
+    elif _pick_backend(backend, ref) == "numba":
+        # dp_warp's kernel call without its input checks (done above): for one pair the Python and torch overhead
+        # around the DP costs more than the DP
         cfg = _settings(neighbourhood, band, coarse, BAND_NEIGHBOURHOOD, 1, 1, 0.0, refine, 1)  # as dp_warp's
-        reg = _register_curves_numba(mov, ref, False, "none", _UP.to(ref.dtype), cfg)
-        warp, q_reg, e_after = reg.gamma, reg.q_registered, reg.energy
-        registered = reg.registered + (mov[:, :1] - ref[:, :1])
+        warp = _register_numba(q_ref.detach(), q_mov.detach(), "none", _UP.to(ref.dtype), cfg)[2]
     else:
         warp = dp_warp(q_ref.detach(), q_mov.detach(), neighbourhood=neighbourhood, band=band, coarse=coarse,
                        band_neighbourhood=BAND_NEIGHBOURHOOD, refine=refine, backend=backend).gamma.to(ref.dtype)
-        registered = interpolate_curve(mov, warp)
-        q_reg = srvf(registered)
-        e_after = srvf_sq_distance(q_ref, q_reg)
+    registered = interpolate_curve(mov, warp)
+    q_reg = srvf(registered)
+    e_after = srvf_sq_distance(q_ref, q_reg)
     start_sq = (ref[:, 0] - mov[:, 0]).square().sum(-1)
     # the DP never returns worse than the identity; this guards the recomputed (float) energy too
     worse = e_after > e_before
