@@ -278,10 +278,12 @@ def test_identities_agree_with_ground_truth(plant_and_aligned):
     assert float(acc.per_pair.mean()) >= 0.85, acc
 
 
-@pytest.mark.xfail(strict=True, reason="issue 12 target not met on the realistic generator: young frames whose main "
-                   "branch runs into the apex leaf (seed 3: tomato pairs 1-2 at 75-86 %, maize pairs 1-2 at 33-43 %)")
-def test_identities_agree_with_ground_truth_on_every_pair(plant_and_aligned):
+def test_identities_agree_with_ground_truth_on_every_pair(plant_and_aligned, request):
     plant, al = plant_and_aligned
+    if plant.kind == "tomato":
+        request.applymarker(pytest.mark.xfail(strict=True, reason="issue 12 target not met on realistic tomato: "
+                                              "seed 3 pair 1-2 at 89 % (was 75 % before main branches were chosen "
+                                              "jointly over time; maize went from 33 % to 100 %)"))
     assert float(identity_accuracy(al, plant.sequence.frames.label).per_pair.min()) >= 0.95
 
 
@@ -308,10 +310,11 @@ def test_identity_table_and_late_branches(plant_and_aligned):
         assert float(al.aligned.q[:j, k].abs().max() if j > 0 else 0.0) == 0.0
 
 
-@pytest.mark.xfail(strict=False, reason="needs every identity right: the realistic tomato (seed 3) has a young-frame "
-                   "main branch that runs into the apex leaf, whose organ then takes an earlier slot")
-def test_late_organs_are_null_before_they_appear(plant_and_aligned):
+def test_late_organs_are_null_before_they_appear(plant_and_aligned, request):
     plant, al = plant_and_aligned
+    if plant.kind == "tomato":
+        request.applymarker(pytest.mark.xfail(strict=False, reason="needs every identity right: the realistic tomato "
+                                              "(seed 3) still has a pair at 89 %"))
     seq = plant.sequence
     present = al.identity >= 0
     ptr, lab = seq.frames.ptr.tolist(), seq.frames.label.tolist()

@@ -39,7 +39,7 @@ MARGIN = 0.9
 
 def alternative_main_paths(xyz: np.ndarray, parent: np.ndarray, hierarchy: str = "straightest",
                            window: float | None = None, top: int = TOP_BRANCH_POINTS,
-                           where: str = "skeleton") -> list[list[int]]:
+                           where: str = "skeleton", ids: np.ndarray | None = None) -> list[list[int]]:
     """The rule's main path (first) and its alternatives, as node indices from the root.
 
     An alternative leaves the rule's main path at one of its ``top`` topmost branch points into another child, and
@@ -50,10 +50,11 @@ def alternative_main_paths(xyz: np.ndarray, parent: np.ndarray, hierarchy: str =
         xyz: ``(n, d)`` node coordinates. parent: ``(n,)`` parent indices, ``-1`` at the root.
         hierarchy, window: the rule and its direction window (:func:`~.skeleton.continuation_children`).
         top: how many branch points, counted down from the top of the main path, may branch off.
+        where, ids: a name and the node ids for error messages.
     """
     xyz = np.asarray(xyz, dtype=np.float64)
     parent = np.asarray(parent, dtype=np.int64)
-    order = validate_skeleton(xyz, parent, where)
+    order = validate_skeleton(xyz, parent, where, ids)
     children = _children(parent)
     edge = np.zeros(len(xyz))
     has_parent = parent >= 0
@@ -81,14 +82,14 @@ def consistent_frames(skeletons: Sequence[tuple[np.ndarray, np.ndarray, np.ndarr
                       hierarchy: str = "straightest", window: float | None = None,
                       lambdas: Sequence[float] = (1.0, 1.0, 9.0), rotation: str = "none",
                       top: int = TOP_BRANCH_POINTS, screen_T: int = SCREEN_T, margin: float = MARGIN,
-                      names: Sequence[str] | None = None,
+                      names: Sequence[str] | None = None, ids: Sequence[np.ndarray] | None = None,
                       dtype: torch.dtype = torch.float32, **tree_kwargs: object) -> list[Trees]:
     """The frames of a 4D tree as single trees whose main branches agree over time (module doc).
 
     Args:
         skeletons: per frame, in time order, ``(xyz (n, d), parent (n,), node_labels (n,) or None)``.
         T, hierarchy, window, dtype, tree_kwargs: as :func:`~.skeleton.skeleton_to_trees`
-            (``max_layers``, ``min_branch_length``, ``ids``).
+            (``max_layers``, ``min_branch_length``).
         lambdas, rotation: the registration that compares a frame's candidates with its next frame
             (:func:`~.registration.register_to_reference`, position weight relative to the plant's size): the
             within-sequence registration's defaults.
@@ -99,7 +100,7 @@ def consistent_frames(skeletons: Sequence[tuple[np.ndarray, np.ndarray, np.ndarr
             registrations differ by a few percent either way, while a frame that chose the wrong continuation
             registers 15-65 % closer with the right one (realistic synthetic maize).
         top: branch points at the top of the main branch that may continue elsewhere (0: the rule alone).
-        names: per frame, a name for error messages.
+        names, ids: per frame, a name and the node ids for error messages.
 
     Returns:
         one single-tree :class:`Trees` per frame.
@@ -107,16 +108,18 @@ def consistent_frames(skeletons: Sequence[tuple[np.ndarray, np.ndarray, np.ndarr
     n = len(skeletons)
     names = list(names) if names is not None else [f"frame {j}" for j in range(n)]
 
-    def build(j: int, path: list[int] | None, points: int = T) -> Trees:
+    def build(j: int, path: list[int], points: int, **kwargs: object) -> Trees:
         xyz, par, lab = skeletons[j]
-        return skeleton_to_trees(xyz, par, T=points, main_path=path, node_labels=lab, where=names[j], dtype=dtype,
-                                 hierarchy=hierarchy, window=window, **tree_kwargs)  # type: ignore[arg-type]
+        return skeleton_to_trees(xyz, par, T=points, main_path=path, node_labels=lab, where=names[j],
+                                 ids=None if ids is None else ids[j], dtype=dtype, hierarchy=hierarchy, window=window,
+                                 **kwargs)  # type: ignore[arg-type]
 
     chosen: list[list[int]] = [[] for _ in range(n)]
     coarse: Trees | None = None  # the chosen next frame at the screening resolution
     for j in range(n - 1, -1, -1):
-        paths = alternative_main_paths(skeletons[j][0], skeletons[j][1], hierarchy, window, where=names[j],
-                                       top=top if j < n - 1 else 0)
+        paths = alternative_main_paths(skeletons[j][0], skeletons[j][1], hierarchy, window,
+                                       top=top if j < n - 1 else 0, where=names[j], ids=None if ids is None else ids[j])
+        # whole trees are compared, whatever the layers kept: the main branch must not depend on max_layers
         candidates = [build(j, p, screen_T) for p in paths]
         pick = 0
         if len(candidates) > 1:
@@ -125,4 +128,4 @@ def consistent_frames(skeletons: Sequence[tuple[np.ndarray, np.ndarray, np.ndarr
             best = int(np.argmin(d[1:])) + 1
             pick = best if d[best] < margin * d[0] else 0  # the rule's own path (first) unless clearly worse
         chosen[j], coarse = paths[pick], candidates[pick]
-    return [build(j, chosen[j]) for j in range(n)]
+    return [build(j, chosen[j], T, **tree_kwargs) for j in range(n)]
