@@ -33,6 +33,8 @@ __all__ = ["alternative_main_paths", "consistent_frames"]
 TOP_BRANCH_POINTS = 2
 # points per branch of the candidate trees compared by registration
 SCREEN_T = 16
+# layers of the candidate trees compared: the main branch and what hangs on it directly decide it
+SCREEN_LAYERS = 2
 # an alternative main path must register this much closer (as a factor) than the rule's own to replace it
 MARGIN = 0.9
 
@@ -120,7 +122,7 @@ def consistent_frames(skeletons: Sequence[tuple[np.ndarray, np.ndarray, np.ndarr
         paths = alternative_main_paths(skeletons[j][0], skeletons[j][1], hierarchy, window,
                                        top=top if j < n - 1 else 0, where=names[j], ids=None if ids is None else ids[j])
         # whole trees are compared, whatever the layers kept: the main branch must not depend on max_layers
-        candidates = [build(j, p, screen_T) for p in paths]
+        candidates = [build(j, p, screen_T, max_layers=SCREEN_LAYERS) for p in paths]
         pick = 0
         if len(candidates) > 1:
             regs = register_to_reference(Trees.cat(candidates), coarse, lambdas, rotation, lp_relative=True)
