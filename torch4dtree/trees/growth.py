@@ -4,11 +4,13 @@ registration").
 A hierarchy rule (:mod:`.skeleton`) decides each frame alone, and near the apex of a young plant it can go either
 way: the youngest maize leaf rides up along the stem and leaves the whorl almost straight, so the main branch runs
 into the leaf on one day and up the stem the next. Every branch above that point then changes identity between
-the two days. The plant's older frames are unambiguous (the stem has outgrown the leaves around it), so the
-choice is made backwards in time: the last frame keeps the rule's hierarchy, and each earlier frame takes, among
-the rule's main branch and its **alternatives** (at each of the main branch's topmost branch points, continue into
-another child instead), the one that registers best onto its already chosen next frame. Only the main branch's
-continuation at the top is reconsidered: lower down, the stem is the straight, heavy continuation on every day.
+the two days. Older frames are less ambiguous (the stem has outgrown the leaves around it), so the choice is made
+backwards in time: the last frame keeps the rule's hierarchy, and each earlier frame takes, among the rule's main
+branch and its **alternatives** (at each of the main branch's topmost branch points, continue into another child
+instead), the one that registers best onto its already chosen next frame, if it wins clearly (``margin``). Only
+the main branch's continuation at the top is reconsidered: lower down, the stem is the straight, heavy
+continuation on every day. (Comparing the last frame with the one before it too was tried: it follows a wrong
+earlier frame as often as it mends the last one.)
 """
 
 from __future__ import annotations
@@ -121,7 +123,7 @@ def consistent_frames(skeletons: Sequence[tuple[np.ndarray, np.ndarray, np.ndarr
     for j in range(n - 1, -1, -1):
         paths = alternative_main_paths(skeletons[j][0], skeletons[j][1], hierarchy, window,
                                        top=top if j < n - 1 else 0, where=names[j], ids=None if ids is None else ids[j])
-        # whole trees are compared, whatever the layers kept: the main branch must not depend on max_layers
+        # compared with SCREEN_LAYERS layers whatever max_layers keeps: the main branch must not depend on it
         candidates = [build(j, p, screen_T, max_layers=SCREEN_LAYERS) for p in paths]
         pick = 0
         if len(candidates) > 1:
