@@ -489,7 +489,11 @@ def effective_lambdas(lambdas: Sequence[float], reference: Trees, moving: Trees 
     with ``lp_relative``. ``L = sqrt(L_moving * L_reference)``, the geometric mean of the two main-branch lengths:
     symmetric in the pair, so ``A -> B`` and ``B -> A`` minimise the same metric (with ``L_reference`` alone, a
     plant whose stem doubled in a day was registered with twice the ``lp`` one way as the other, and near-tied
-    assignments of leaflets resolved differently in the two directions). Without ``moving``: ``L_reference``."""
+    assignments of leaflets resolved differently in the two directions). Measured on the .mat trees (64 pairs,
+    mapped points, eps 0.1): 0.81 -> 0.62 % at T = 256, 0.75 -> 0.56 % at 128, 0.69 -> 0.58 % at 64; the longer
+    main branch instead of the geometric mean gave 0.54 / 0.87 / 0.69 %. Identity precision / recall on the
+    realistic synthetic plants is unchanged (bench.hierarchy.identity_accuracy, seeds 0-2, lp 1 and 9). Without
+    ``moving``: ``L_reference``."""
     lm, ls, lp = _check_lambdas(lambdas)
     length = float(reference.branch_lengths()[0].detach())
     if moving is not None:
