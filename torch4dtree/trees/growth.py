@@ -20,7 +20,7 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 
-from .registration import register_to_reference
+from .registration import effective_lambdas, register_to_reference
 from .skeleton import (
     _children,
     continuation_children,
@@ -127,7 +127,9 @@ def consistent_frames(skeletons: Sequence[tuple[np.ndarray, np.ndarray, np.ndarr
         candidates = [build(j, p, screen_T, max_layers=SCREEN_LAYERS) for p in paths]
         pick = 0
         if len(candidates) > 1:
-            regs = register_to_reference(Trees.cat(candidates), coarse, lambdas, rotation, lp_relative=True)
+            # one metric for all candidates (lp relative to the reference alone): their main branches differ in length
+            regs = register_to_reference(Trees.cat(candidates), coarse, effective_lambdas(lambdas, coarse), rotation,
+                                         lp_relative=False)
             d = np.array([float(r.distance) for r in regs])
             best = int(np.argmin(d[1:])) + 1
             pick = best if d[best] < margin * d[0] else 0  # the rule's own path (first) unless clearly worse
