@@ -92,6 +92,105 @@ def test_split_segment_copy_of_a_real_plant_registers_to_zero():
     assert self_distance < 1e-3 * day_distance, (self_distance, day_distance)
 
 
+def resample_edges(xyz: np.ndarray, parent: np.ndarray, rng: np.random.Generator,
+                   pieces: int = 3) -> tuple[np.ndarray, np.ndarray]:
+    """The same skeleton with every segment cut into 1 to ``pieces`` parts at random fractions (new nodes last)."""
+    pts, par = list(xyz), parent.copy()
+    new_parent: list[int] = []
+    for v in np.nonzero(parent >= 0)[0]:
+        prev = int(parent[v])
+        for t in np.sort(rng.uniform(0.02, 0.98, rng.integers(0, pieces))):
+            pts.append(xyz[parent[v]] + t * (xyz[v] - xyz[parent[v]]))
+            new_parent.append(prev)
+            prev = len(pts) - 1
+        par[v] = prev
+    return np.array(pts), np.concatenate([par, np.array(new_parent, dtype=np.int64)])
+
+
+def drop_collinear(xyz: np.ndarray, parent: np.ndarray, tol: float = 1e-9) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The skeleton without the nodes that have one child in line with their own segment (same geometry).
+    Returns ``(xyz, parent, kept)``: ``kept`` the original index of every remaining node."""
+    kids = np.bincount(parent[parent >= 0], minlength=len(xyz))
+    only_child = np.full(len(xyz), -1)
+    only_child[parent[parent >= 0]] = np.nonzero(parent >= 0)[0]
+    drop = np.zeros(len(xyz), dtype=bool)
+    for v in np.nonzero((parent >= 0) & (kids == 1))[0]:
+        a, b = xyz[v] - xyz[parent[v]], xyz[only_child[v]] - xyz[v]
+        drop[v] = np.linalg.norm(np.cross(a, b)) <= tol * np.linalg.norm(a) * np.linalg.norm(b) and a @ b > 0
+    up = parent.copy()
+    for v in range(len(xyz)):
+        while up[v] >= 0 and drop[up[v]]:
+            up[v] = parent[up[v]]
+    kept = np.nonzero(~drop)[0]
+    index = np.cumsum(~drop) - 1
+    return xyz[kept], np.where(up[kept] >= 0, index[np.maximum(up[kept], 0)], -1), kept
+
+
+def hierarchy_of(xyz: np.ndarray, parent: np.ndarray, original: np.ndarray, hierarchy: str = "straightest") -> set:
+    """The branches as ``(own original nodes, parent branch's own original nodes)``; ``original (n,)`` maps every
+    node to its index in the original skeleton, ``-1`` for a node not to compare (inserted or removed)."""
+    _, parents, paths = skeleton_to_branches(xyz, parent, hierarchy=hierarchy)
+    own = [frozenset(int(original[v]) for v in (p if i == 0 else p[1:]) if original[v] >= 0)
+           for i, p in enumerate(paths)]
+    return {(own[i], own[k] if k >= 0 else None) for i, k in enumerate(parents)}
+
+
+def density_frames() -> list[tuple[str, np.ndarray, np.ndarray]]:
+    """Young and older Pheno4D skeletons (among them every one whose hierarchy changed when the window had a floor
+    of 3 median edges) and synthetic frames (two of which changed then)."""
+    from torch4dtree.data import synthetic_plant
+
+    out = []
+    for plant, name in [("tomato_1", "T01_0305"), ("tomato_1", "T01_0313"), ("Tomato_3", "T03_0313"),
+                        ("Tomato_5", "T05_0307"), ("Tomato_5", "T05_0311"), ("Tomato_3", "T03_0324"),
+                        ("Maize01", "M01_0313"), ("Maize02", "M02_0325")]:
+        sk = read_swc_skeleton(pheno4d("swc", plant, f"{name}_a_seg.swc"))
+        out.append((name, sk.xyz.astype(np.float64), sk.parent.astype(np.int64)))
+    for kind, seed, frame in [("tomato", 2, 3), ("maize", 0, 0), ("bean", 1, 8)]:
+        xyz, parent, _ = synthetic_plant(kind, seed, n_frames=10, T=8).skeletons[frame]
+        out.append((f"{kind} {seed} frame {frame}", xyz, parent))
+    return out
+
+
+def test_hierarchy_survives_random_splits_and_collinear_node_removal():
+    """Cutting segments at random fractions (1-3 pieces each) and then removing the collinear nodes again, on
+    real and synthetic frames: the same branches with the same parents, node for node."""
+    rng = np.random.default_rng(0)
+    for name, xyz, parent in density_frames():
+        n = len(xyz)
+        ref = hierarchy_of(xyz, parent, np.arange(n))
+        dense, dense_parent = resample_edges(xyz, parent, rng)
+        assert len(dense) > 1.5 * n
+        inserted = np.r_[np.arange(n), np.full(len(dense) - n, -1)]
+        assert hierarchy_of(dense, dense_parent, inserted) == ref, name
+        sparse, sparse_parent, kept = drop_collinear(dense, dense_parent)
+        assert len(sparse) == n and hierarchy_of(sparse, sparse_parent, inserted[kept]) == ref, name
+
+
+def test_straight_stems_merged_into_long_segments_keep_the_hierarchy():
+    """The test plant's stems are exactly straight: without their collinear nodes, the stem is a few long segments
+    (what broke a window counted in collinear runs), and the hierarchy is the same."""
+    xyz, parent = stem_with_long_top_leaf()
+    sparse, sparse_parent, kept = drop_collinear(xyz, parent)
+    assert len(sparse) < 0.7 * len(xyz)
+    kept_only = np.where(np.isin(np.arange(len(xyz)), kept), np.arange(len(xyz)), -1)
+    for rule in HIERARCHIES:
+        assert hierarchy_of(sparse, sparse_parent, kept, rule) == hierarchy_of(xyz, parent, kept_only, rule), rule
+    np.testing.assert_allclose(main_branch_top(sparse, sparse_parent), [0, 0, 10.0], atol=1e-12)
+
+
+@pytest.mark.skipif(not PHENO4D.is_dir(), reason="Pheno4D skeletons not available")
+def test_randomly_resampled_young_plant_registers_to_zero():
+    """tomato_1 March 5 (a young plant, where the window's old floor of 3 median edges changed the hierarchy: 10.7)
+    cut at random fractions: < 0.1 % of the distance to the next scan."""
+    day, next_day = (read_swc_skeleton(pheno4d("swc", "tomato_1", f"T01_03{d}_a_seg.swc")) for d in ("05", "07"))
+    xyz, parent = resample_edges(day.xyz, day.parent, np.random.default_rng(1))
+    a, b, c = (skeleton_to_trees(x, p, T=64, dtype=torch.float64)
+               for x, p in ((day.xyz, day.parent), (xyz, parent), (next_day.xyz, next_day.parent)))
+    self_distance, day_distance = float(register_trees(b, a).distance), float(register_trees(c, a).distance)
+    assert self_distance < 1e-3 * day_distance, (self_distance, day_distance)
+
+
 @pytest.mark.skipif(not PHENO4D.is_dir(), reason="Pheno4D skeletons not available")
 def test_rotation_search_never_ends_worse_than_no_rotation():
     """tomato_2 March 19 -> 21: with the identity start dropped by the ranking on the top layers, the vertical search

@@ -14,7 +14,7 @@ from pathlib import Path
 
 ROTATIONS = ("none", "vertical", "so3")
 # the settings that decide how files become trees (the fields of io.LoadOptions that a config sets)
-LOAD_SETTINGS = ("T", "max_layers", "min_branch_length", "repair", "hierarchy")
+LOAD_SETTINGS = ("T", "max_layers", "min_branch_length", "repair", "hierarchy", "joint_hierarchy")
 # = trees.skeleton.HIERARCHIES (literal for the same reason as DEFAULT_T; tested)
 HIERARCHIES = ("straightest", "heaviest", "longest")
 # = trees.structures.DEFAULT_T (kept literal so that importing this module never imports torch; tested)
@@ -38,6 +38,7 @@ class Config:
     min_branch_length: float = 0.0
     repair: bool = False
     hierarchy: str = "straightest"  # skeleton -> branches rule (torch4dtree.trees.skeleton)
+    joint_hierarchy: bool = True  # SWC sequences: main branches that agree over time (torch4dtree.trees.growth)
     rotation: str = "none"
     lambdas: tuple[float, float, float] = (1.0, 1.0, 1.0)  # (lm, ls, lp)
     neighbourhood: int = 4  # DP slopes up to 4: fastest and most cycle-consistent on Pheno4D at T = 64

@@ -110,14 +110,17 @@ if __name__ == "__main__":  # pragma: no cover
 
 def identity_accuracy(kinds: tuple[str, ...] = ("tomato", "maize", "bean"), seeds: tuple[int, ...] = (0, 1, 2),
                       rules: tuple[str, ...] = HIERARCHIES, lp_per_length: tuple[float | None, ...] = (9.0,),
-                      n_frames: int = 10, T: int = 32, cross_plant: bool = True) -> list[dict]:
+                      n_frames: int = 10, T: int = 32, cross_plant: bool = True,
+                      joint_hierarchy: bool = True) -> list[dict]:
     """Identity precision / recall of registrations of realistic synthetic plants against their organ truth.
 
     For every kind, hierarchy rule and relative position weight (``lp_per_length``: the relative ``lp``,
     9 = within-sequence registration's default; ``None``: ``lp = 1`` in the data's units, the old default):
     consecutive frames of each plant (``seeds`` plants) and, with ``cross_plant``, the same frame of two
-    different plants (frames 3, 6, 9; vertical rotation). Rows are ``{kind, rule, lp_per_length,
-    consecutive: {precision, recall, pairs}, cross: {...}, seconds}``, micro-averaged (counts pooled).
+    different plants (frames 3, 6, 9; vertical rotation). ``joint_hierarchy``: main branches chosen jointly over
+    time (:mod:`torch4dtree.trees.growth`, the default) or by the rule on each frame alone. Rows are ``{kind, rule,
+    joint_hierarchy, lp_per_length, consecutive: {precision, recall, pairs}, cross: {...}, seconds}``,
+    micro-averaged (counts pooled).
     """
     import time
 
@@ -128,7 +131,8 @@ def identity_accuracy(kinds: tuple[str, ...] = ("tomato", "maize", "bean"), seed
     for kind in kinds:
         for rule in rules:
             plants = [synthetic_plant(kind, seed, n_frames=n_frames, T=T, dtype=torch.float64,
-                                      hierarchy_kwargs={"hierarchy": rule}) for seed in seeds]
+                                      hierarchy_kwargs={"hierarchy": rule}, joint_hierarchy=joint_hierarchy)
+                      for seed in seeds]
             for lpl in lp_per_length:
                 t0 = time.perf_counter()
                 kw = {"lambdas": (1.0, 1.0, 1.0), "lp_relative": False} if lpl is None else \
@@ -145,7 +149,7 @@ def identity_accuracy(kinds: tuple[str, ...] = ("tomato", "maize", "bean"), seed
                     return {"precision": hit_p / max(tot_p, 1), "recall": hit_r / max(tot_r, 1), "pairs": len(pairs)}
 
                 frames = [p.sequence.frames for p in plants]
-                row = {"kind": kind, "rule": rule, "lp_per_length": lpl,
+                row = {"kind": kind, "rule": rule, "joint_hierarchy": joint_hierarchy, "lp_per_length": lpl,
                        "consecutive": pooled([(f[j], f[j + 1], "none") for f in frames for j in range(len(f) - 1)])}
                 if cross_plant and len(plants) > 1:
                     row["cross"] = pooled([(frames[a][j], frames[b][j], "vertical") for a in range(len(plants))

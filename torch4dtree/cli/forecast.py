@@ -50,7 +50,8 @@ def run(args: argparse.Namespace) -> int:
     for s in f.samples:
         written += [str(p) for p in write_sequence(out / s.name, s, overwrite=args.overwrite)]
     meta = {"model": args.model, "written": written, "sequence": args.sequence, "times": times.tolist(), "rate": f.rate,
-            "coefficients": f.coefficients.tolist(), "covariance": f.covariance.tolist()}
+            "gain": f.gain, "coefficients": f.coefficients.tolist(), "covariance": f.covariance.tolist()}
     write_text_safely(out / "forecast.json", json.dumps(meta, indent=2), overwrite=args.overwrite)
-    print(f"forecast of {seq.name} from t = {last:.4g} to {args.until:.4g} in {out} (time rate {f.rate:.2f})")
+    print(f"forecast of {seq.name} from t = {last:.4g} to {args.until:.4g} in {out} (time rate {f.rate:.2f}, "
+          f"gain {f.gain:.2f})")
     return 0

@@ -82,6 +82,9 @@ def add_config_arguments(parser: argparse.ArgumentParser, registration: bool = F
     group.add_argument("--hierarchy", choices=HIERARCHIES, default=None,
                        help=f"which child continues a branch at an SWC branch point (default: {Config.hierarchy}, "
                             "stable as plants grow; longest = the paper's longest-path rule)")
+    group.add_argument("--per-frame-hierarchy", dest="joint_hierarchy", action="store_const", const=False,
+                       default=None, help="in SWC sequences, apply the rule to each frame alone (default: each "
+                       "frame's main branch is chosen to agree with the next frame's)")
     if registration:
         group.add_argument("--rotation", choices=ROTATIONS, default=None,
                            help=f"global rotation to optimise (default: {Config.rotation}, the scans share a frame)")

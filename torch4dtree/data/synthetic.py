@@ -97,6 +97,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from ..trees.growth import consistent_frames
 from ..trees.skeleton import skeleton_to_trees
 from ..trees.structures import DEFAULT_T, Trees, TreeSequence
 
@@ -817,6 +818,7 @@ def synthetic_plant(
     jitter: float = 0.15,
     spurs: float = 1.0,
     hierarchy_kwargs: dict | None = None,
+    joint_hierarchy: bool = True,
 ) -> SyntheticPlant:
     """Generate one synthetic growing plant: per-frame skeletons with organ labels, and the trees derived from them.
 
@@ -841,6 +843,9 @@ def synthetic_plant(
         spurs: multiplier of the kind's rate of skeletonisation spurs; 0 for none.
         hierarchy_kwargs: keyword arguments of :func:`~torch4dtree.trees.skeleton.skeleton_to_trees` (the
             hierarchy rule and its settings) used to derive :attr:`SyntheticPlant.sequence`.
+        joint_hierarchy: choose each frame's main branch to agree with the next frame's
+            (:func:`~torch4dtree.trees.growth.consistent_frames`), as :func:`~torch4dtree.io.read_sequence` does
+            with the written SWC files by default; ``False``: the rule on each frame alone.
 
     The longest-path guarantee of earlier versions (side branches capped below ``margin`` times the
     rest of their parent, so the longest-path rule always found the stem) is gone, and with it the
@@ -875,18 +880,23 @@ def synthetic_plant(
     bio = np.interp(tn, grid, h)
     name = name or f"{kind}_seed{seed}"
     skeletons: list[Skeleton] = []
-    trees: list[Trees] = []
     for j, b in enumerate(bio):
         frame_rng = np.random.default_rng([seed, kid, 3, j])
         curves, length, pos = _organ_curves(model, float(b), frame_rng, noise, min_length)
         sk = _skeleton(model, curves, length, pos, frame_rng, spacing, jitter, spurs)
         skeletons.append(sk)
-        trees.append(skeleton_to_trees(sk[0], sk[1], T=T, node_labels=sk[2], dtype=dtype, where=f"{name} frame {j}",
-                                       **(hierarchy_kwargs or {})))
+    names = [f"{name} frame {j}" for j in range(len(bio))]
+    if joint_hierarchy:
+        trees = consistent_frames(skeletons, T=T, names=names, dtype=dtype, **(hierarchy_kwargs or {}))
+    else:
+        trees = [skeleton_to_trees(sk[0], sk[1], T=T, node_labels=sk[2], dtype=dtype, where=where,
+                                   **(hierarchy_kwargs or {})) for sk, where in zip(skeletons, names)]
     sequence = TreeSequence(Trees.cat(trees), torch.tensor(t, dtype=dtype), name)
     settings = {"n_frames": len(t), "T": T, "noise": noise, "warp_strength": warp_strength,
                 "min_length": min_length, "grid_size": grid_size, "node_spacing": spacing, "jitter": jitter,
                 "spurs": spurs}
+    if not joint_hierarchy:
+        settings["joint_hierarchy"] = False
     if hierarchy_kwargs:
         settings["hierarchy_kwargs"] = {k: _json_safe(v) for k, v in hierarchy_kwargs.items()}
     return SyntheticPlant(

@@ -277,7 +277,7 @@ def _forecast(model: FourDTreeModel, plant: Plant4D, frames: Tensor) -> dict[str
     errs = {key: float((x - truth).norm(dim=-1).mean()) for key, x in guesses.items()}
     pca_errs = {key: float((x[..., :k] - truth[..., :k]).norm(dim=-1).mean()) for key, x in guesses.items()}
     return {**errs, "tree_pca": pca_errs, "observed": half, "forecast": n - half, "rate": float(f.rate),
-            "seconds": seconds}
+            "gain": float(f.gain), "seconds": seconds}
 
 
 def _fold(train: list[Plant4D], held: list[Plant4D], settings: EvalSettings, gen: torch.Generator

@@ -28,10 +28,9 @@ of the original branches still present that were matched to themselves).
   branches of its own is picked at random (its parent may become one), as organs missed by a scan rather than
   whole shoots cut off.
 * ``split``: a share of the edges gets a midpoint node. The geometry is unchanged, so the distance must stay
-  ~0 and every identity be kept: a check of the reader's invariance to node density. (It can fail in mode
-  ``rule`` on young plants: the straightest rule's direction window is at least 3 median edges, so halving the
-  edges can change the hierarchy; the index-order baseline pairs siblings at the same ``s`` in packed order,
-  which new nodes can change, so its scores may drop though nothing moved.)
+  ~0 and every identity be kept: a check of the reader's invariance to node density. (The index-order baseline
+  pairs siblings at the same ``s`` in packed order, which new nodes can change, so its scores may drop though
+  nothing moved.)
 
 **Scores** per level, pooled over the sampled frames: precision / recall of the registration (counts pooled)
 and of the index-order correspondence (children matched by order of ``s``; the baseline), the registered

@@ -30,7 +30,7 @@ import torch
 
 from ..trees.structures import DEFAULT_T, TreeError, Trees, TreeSequence
 from .mat import read_mat_tree
-from .swc import read_swc
+from .swc import read_swc, read_swc_skeleton
 
 FRAME_SUFFIXES = (".swc", ".mat")
 TIMES_MANIFEST = "times.json"
@@ -51,6 +51,8 @@ class LoadOptions:
     labels_from_type: bool = False
     dtype: torch.dtype = torch.float32
     hierarchy: str = "straightest"  # how a skeleton's branch points are resolved (torch4dtree.trees.skeleton)
+    # in a sequence of SWC frames, main branches chosen to agree over time (torch4dtree.trees.growth)
+    joint_hierarchy: bool = True
 
 
 @dataclass
@@ -143,18 +145,27 @@ def read_sequence(
     options: LoadOptions | None = None,
     progress: Callable[[str], None] | None = None,
 ) -> LoadedSequence:
-    """Read a sequence folder as a :class:`TreeSequence` (empty frames skipped)."""
+    """Read a sequence folder as a :class:`TreeSequence` (empty frames skipped).
+
+    With ``options.joint_hierarchy`` (the default) and SWC frames only, each frame's main branch is chosen to agree
+    with the next frame's (:func:`torch4dtree.trees.growth.consistent_frames`): a young plant's main branch then
+    runs up its stem as on later days instead of into whichever apex leaf leaves the stem straightest today.
+    """
+    o = options or LoadOptions()
     folder = Path(folder)
     if not folder.is_dir():
         raise DatasetError(f"{folder}: not a folder")
+    pairs = frame_times(folder)
+    if o.joint_hierarchy and len(pairs) > 1 and all(p.suffix.lower() == ".swc" for p, _ in pairs):
+        return _read_swc_sequence(folder, pairs, o, progress)
     frames: list[Trees] = []
     times: list[float] = []
     used: list[str] = []
     skipped: list[str] = []
-    for path, t in frame_times(folder):
+    for path, t in pairs:
         if progress:
             progress(path.name)
-        tree = read_tree(path, options)
+        tree = read_tree(path, o)
         if tree is None:
             skipped.append(path.name)
             continue
@@ -166,6 +177,26 @@ def read_sequence(
     dtype = frames[0].dtype
     seq = TreeSequence(Trees.cat(frames), torch.tensor(times, dtype=dtype), folder.name)
     return LoadedSequence(seq, used, skipped)
+
+
+def _read_swc_sequence(folder: Path, pairs: list[tuple[Path, float]], o: LoadOptions,
+                       progress: Callable[[str], None] | None) -> LoadedSequence:
+    """A folder of SWC frames with main branches that agree over time (see :func:`read_sequence`)."""
+    from ..trees.growth import consistent_frames
+
+    skeletons, ids = [], []
+    for path, _ in pairs:
+        if progress:
+            progress(path.name)
+        sk = read_swc_skeleton(path, o.repair)
+        skeletons.append((sk.xyz, sk.parent, sk.types if o.labels_from_type else None))
+        ids.append(sk.ids)
+    # built as read_tree builds a single file (float32, then cast), so the numbers match it where the hierarchy does
+    trees = consistent_frames(skeletons, T=o.T, hierarchy=o.hierarchy, names=[str(p) for p, _ in pairs],
+                              max_layers=o.max_layers, min_branch_length=o.min_branch_length, ids=ids)
+    frames = Trees.cat([t.to(o.dtype) for t in trees])
+    seq = TreeSequence(frames, torch.tensor([t for _, t in pairs], dtype=o.dtype), folder.name)
+    return LoadedSequence(seq, [p.name for p, _ in pairs])
 
 
 def is_sequence_folder(folder: Path) -> bool:

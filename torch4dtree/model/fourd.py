@@ -38,6 +38,8 @@ FORECAST_STEPS = 8
 # forecast observation noise: at least this share of the training trajectories' mean squared spread about the mean,
 # and at least what the modes leave unexplained of them per time sample
 FORECAST_NOISE = 0.05
+# forecast gain calibration (fit): at most this many training plants (each costs one encoding, :meth:`fit`)
+FORECAST_CALIBRATION_PLANTS = 12
 
 
 class ModelOutput(NamedTuple):
@@ -69,7 +71,8 @@ class Forecast(NamedTuple):
     * ``samples``: ``n`` 4D trees drawn from the conditional Gaussian.
     * ``coefficients (m,)``, ``covariance (m, m)``: the conditional Gaussian of ``z``.
     * ``trajectory (len(times), k)``, ``sample_trajectories (n, len(times), k)``: tree-PCA coordinates at ``times``.
-    * ``rate``: the observed part's time-rate factor found by the temporal alignment.
+    * ``rate``: the observed part's time-rate factor found by the temporal alignment (of the conditional Gaussian).
+    * ``gain``: the share of the last observed frame's deviation from the 4D mean carried into the forecast.
     """
 
     mean: TreeSequence | None
@@ -79,6 +82,7 @@ class Forecast(NamedTuple):
     trajectory: Tensor
     sample_trajectories: Tensor
     rate: float
+    gain: float
 
 
 class FourDTreeModel(nn.Module):
@@ -110,6 +114,7 @@ class FourDTreeModel(nn.Module):
         self.register_buffer("time_start", torch.tensor(0.0, dtype=torch.float64))
         self.register_buffer("duration", torch.tensor(1.0, dtype=torch.float64))
         self.register_buffer("obs_noise", torch.tensor(1.0, dtype=torch.float64))
+        self.register_buffer("forecast_gain", torch.tensor(0.0, dtype=torch.float64))
         self.report_: dict[str, Any] = {}
 
     # ------------------------------------------------------------------------ state
@@ -126,6 +131,8 @@ class FourDTreeModel(nn.Module):
         extra = state_dict.get("sampler._extra_state")
         if isinstance(extra, dict) and "n_modes" in extra:
             self.sampler.n_modes = int(extra["n_modes"])
+        if "forecast_gain" not in state_dict:  # checkpoints written before the gain existed: forecast the 4D mean
+            state_dict = {**state_dict, "forecast_gain": torch.tensor(0.0, dtype=torch.float64)}
         return super().load_state_dict(state_dict, strict, assign)
 
     @property
@@ -150,6 +157,7 @@ class FourDTreeModel(nn.Module):
         """Fit every stage on ``N >= 2`` 4D trees (CPU). Returns ``self``; diagnostics in ``report_``."""
         import time
 
+        sequences = list(sequences)
         self.population.fit(sequences, progress)
         alpha = self.population.trajectories
         t0 = time.perf_counter()
@@ -168,6 +176,10 @@ class FourDTreeModel(nn.Module):
         recon = self.pca.trajectories(z)
         unexplained = float((recon - reg.registered).square().sum(-1).mean())
         self.obs_noise.fill_(max(FORECAST_NOISE * spread, unexplained, 1e-12))
+        t0 = time.perf_counter()
+        calibration = self._calibrate_forecast(sequences[:FORECAST_CALIBRATION_PLANTS])
+        self.forecast_gain.fill_(calibration["gain"])
+        t_forecast = time.perf_counter() - t0
         self.report_ = {
             "population": self.population.report_, "mean_energies": list(self.mean.energies_),
             "temporal_distance_before": [float(x) for x in reg.distance_before],
@@ -177,9 +189,49 @@ class FourDTreeModel(nn.Module):
             "reconstruction_4d": [float(x) for x in residual],
             "reconstruction_trajectory_rms": [float(x) for x in (recon - reg.registered).square().sum(-1).mean(-1)
                                               .sqrt()],
-            "seconds": {**self.population.report_["seconds"], "mean": t_mean, "pca": t_pca},
+            "forecast": calibration,
+            "seconds": {**self.population.report_["seconds"], "mean": t_mean, "pca": t_pca,
+                        "forecast_calibration": t_forecast},
         }
         return self
+
+    def _mean_at_age(self, times: Tensor, first: Tensor | float) -> Tensor:
+        """``(len(times), k)``: the 4D mean at the ages ``times - first`` (over the training plants' mean duration),
+        the population's prediction for a plant first seen at ``first``."""
+        u = ((times.to(torch.float64) - float(first)) / float(self.duration)).clamp(0, 1)
+        return time_warp_trajectory(self.mean.trajectory, u.to(self.mean.trajectory))
+
+    def _calibrate_forecast(self, sequences: Sequence[TreeSequence]) -> dict[str, float]:
+        """The forecast gain ``beta = rho s2 / (s2 + e2)`` from training plants observed over their first half.
+
+        A plant's deviation from the 4D mean at the same age persists: regressing its later frames' deviations on
+        its deviation at the middle frame gives ``rho`` (about 0.8-1 on synthetic plants). But a forecast sees that
+        frame encoded from the first half of the frames only, which differs from its encoding in the whole sequence
+        (each slot is parameterised by the latest frame that holds it, and the layout matching is that of a younger
+        tree) by about as much as plants differ from the mean: ``e2`` (that difference) against ``s2`` (the
+        deviation) is the classic noisy-measurement shrinkage. One encoding per plant (its first half); the whole
+        sequences are the fit's own frames. Keys: ``gain``, ``persistence`` (rho), ``signal``
+        and ``noise`` (s2, e2 per plant), ``plants``.
+        """
+        s2 = e2 = num = den = 0.0
+        layout = self.population.layout_
+        assert layout is not None, "called right after Population.fit (its training frames are not saved)"
+        # the training frames as the fit wrote them (input order): the whole-sequence encodings, for free
+        frames = self.population.pca.transform(layout).split([len(s) for s in self.population.sequences_])
+        for seq, whole in zip(sequences, frames):
+            half = len(seq) // 2
+            whole = whole.to(self.mean.trajectory)
+            prefix = self.population.transform(seq[list(range(half))]).frame_coefficients.to(whole)
+            dev = whole - self._mean_at_age(seq.times, seq.times[0]).to(whole)  # (n, k)
+            middle = dev[half - 1]
+            s2 += float(middle.square().sum())
+            e2 += float((prefix[-1] - whole[half - 1]).square().sum())
+            num += float((dev[half:] @ middle).sum())
+            den += float(middle.square().sum()) * (len(seq) - half)
+        rho = min(max(num / den, 0.0), 1.0) if den > 0 else 0.0
+        gain = rho * s2 / (s2 + e2) if s2 + e2 > 0 else 0.0
+        n = max(len(sequences), 1)
+        return {"gain": gain, "persistence": rho, "signal": s2 / n, "noise": e2 / n, "plants": len(sequences)}
 
     # ------------------------------------------------------------------------ generation
     def sample_coefficients(self, n: int, generator: torch.Generator | None = None) -> Tensor:
@@ -246,12 +298,22 @@ class FourDTreeModel(nn.Module):
                  generator: torch.Generator | None = None, decode: bool = True) -> Forecast:
         """Complete a 4D tree observed over its first frames at ``times`` (data units).
 
-        The observed frames are written in the tree space (per-frame coordinates ``y_j`` at times ``t_j``). Their
-        times are aligned onto the model's normalised time by an affine map ``u = r (t - t_0) / D`` (``t_0`` the
-        first observed time, ``D`` the training trees' mean duration; the rate ``r`` is the best of
-        ``FORECAST_RATES``). Linearising the model's trajectory at the coefficients, ``y_j = alpha_z(u_j) + noise``
-        with ``z ~ N(0, I)`` gives a Gaussian posterior of ``z`` (Gauss-Newton for its mode, its Laplace
-        covariance); ``n`` samples of it give the uncertainty.
+        The observed frames are written in the tree space (per-frame coordinates ``y_j`` at times ``t_j``, the last
+        one ``y_L``). The forecast (``trajectory``, ``mean``) is the 4D mean at the plant's age plus the share
+        ``beta`` (``gain``, calibrated at :meth:`fit`) of the plant's deviation from it at its last observed frame::
+
+            x(t) = mu(t - t_0) + beta (y_L - mu(t_L - t_0))
+
+        (``mu`` the 4D mean at an age over the training trees' mean duration ``D``, ``t_0`` the first observed
+        time): the plant's own size and shape persist, shrunk by how much of that deviation is encoding noise
+        (:meth:`_calibrate_forecast`). Conditioning the modes instead lost to the mean at the same age with 7
+        training plants (issue 13: the modes of a few plants carry little of a new plant's future).
+
+        Uncertainty: the conditional Gaussian of the mode coefficients given the observed part. The observed times
+        are aligned onto the model's normalised time by ``u = r (t - t_0) / D`` (the rate ``r`` the best of
+        ``FORECAST_RATES``); linearising the model's trajectory, ``y_j = alpha_z(u_j) + noise`` with
+        ``z ~ N(0, I)`` gives a Gaussian posterior of ``z`` (Gauss-Newton for its mode ``z*``, its Laplace
+        covariance). Each of the ``n`` samples ``z_s`` is the forecast plus ``alpha_{z_s} - alpha_{z*}``.
         """
         self._check_fitted()
         enc = self.population.transform(partial)
@@ -269,21 +331,23 @@ class FourDTreeModel(nn.Module):
         assert best is not None
         _, r, z, cov = best
         u_out = ((t_out - t_obs[0]) * r / D).clamp(0, 1)
-        traj = time_warp_trajectory(self.trajectories(z[None])[0], u_out.to(z))
-        samples_z = z.new_zeros(0, z.shape[0])
+        gain = float(self.forecast_gain)
+        traj = self._mean_at_age(t_out, t_obs[0]).to(y)
+        traj = traj + gain * (y[-1] - self._mean_at_age(t_obs[-1:], t_obs[0]).to(y))  # (len(times), k)
+        s_traj = z.new_zeros(0, len(t_out), traj.shape[-1])
         if n > 0:
             L = torch.linalg.cholesky(cov + 1e-12 * torch.eye(cov.shape[0], dtype=cov.dtype))
             eps = torch.randn(n, z.shape[0], generator=generator, dtype=torch.float64)
-            samples_z = z + eps.to(z) @ L.T
-        s_traj = time_warp_trajectory(self.trajectories(samples_z), u_out.to(z)) if n > 0 else \
-            z.new_zeros(0, len(t_out), traj.shape[-1])
+            samples_z = torch.cat([z[None], z + eps.to(z) @ L.T])
+            spread = time_warp_trajectory(self.trajectories(samples_z), u_out.to(z))  # (1 + n, len(times), k)
+            s_traj = traj + (spread[1:] - spread[:1])
         mean_seq, seqs = None, []
         if decode:
             pca = self.population.pca
             mean_seq = TreeSequence(pca.decode(traj.detach()), t_out.to(pca.mean.dtype), f"{partial.name}_forecast")
             seqs = [TreeSequence(pca.decode(a.detach()), t_out.to(pca.mean.dtype), f"{partial.name}_forecast_{i:03d}")
                     for i, a in enumerate(s_traj)]
-        return Forecast(mean_seq, seqs, z.detach(), cov.detach(), traj.detach(), s_traj.detach(), r)
+        return Forecast(mean_seq, seqs, z.detach(), cov.detach(), traj.detach(), s_traj.detach(), r, gain)
 
     def _condition(self, y: Tensor, u: Tensor) -> tuple[Tensor, Tensor, float]:
         """Gaussian posterior of ``z`` given coordinates ``y (n_obs, k)`` at normalised times ``u (n_obs,)``."""

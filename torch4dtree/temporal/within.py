@@ -161,8 +161,13 @@ def register_sequence(seq: TreeSequence, lambdas: Sequence[float] = (1.0, 1.0, 9
         from tqdm.auto import tqdm
 
         single = frames.split()
+        # lp relative to the next frame alone (not the pair's mean, which keeps A -> B and B -> A one metric for
+        # cycle consistency): chaining registers one way only, and a young frame's shorter stem would lower lp
+        # where similar leaves at neighbouring nodes are most easily swapped (realistic maize seed 3: worst pair
+        # 57 % with the pair's mean, 100 % with the next frame's length)
         regs: list[TreeRegistration] = [
-            register_trees(single[j], single[j + 1], lam, rotation, lp_relative=lp_relative, **registration_kwargs)
+            register_trees(single[j], single[j + 1], effective_lambdas(lam, single[j + 1]) if lp_relative else lam,
+                           rotation, lp_relative=False, **registration_kwargs)
             for j in tqdm(range(n - 1), disable=not progress, desc=f"registering {seq.name or 'sequence'}",
                           unit="pair")
         ]
