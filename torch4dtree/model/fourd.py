@@ -40,6 +40,9 @@ FORECAST_STEPS = 8
 FORECAST_NOISE = 0.05
 # forecast gain calibration (fit): at most this many training plants (each costs one encoding, :meth:`fit`)
 FORECAST_CALIBRATION_PLANTS = 12
+# forecast gain calibration: shrink factors of the per-component gains, chosen by leave-one-out over the training
+# plants (0, the 4D mean alone, is among them: the forecast follows the plant only where that predicted held-out ones)
+FORECAST_SHRINK = (0.0, 0.25, 0.5, 0.75, 1.0)
 
 
 class ModelOutput(NamedTuple):
@@ -72,7 +75,8 @@ class Forecast(NamedTuple):
     * ``coefficients (m,)``, ``covariance (m, m)``: the conditional Gaussian of ``z``.
     * ``trajectory (len(times), k)``, ``sample_trajectories (n, len(times), k)``: tree-PCA coordinates at ``times``.
     * ``rate``: the observed part's time-rate factor found by the temporal alignment (of the conditional Gaussian).
-    * ``gain``: the share of the last observed frame's deviation from the 4D mean carried into the forecast.
+    * ``gain``: the mean over the tree-PCA components of the share of the last observed frame's deviation from the
+      4D mean carried into the forecast (``FourDTreeModel.forecast_gain``, per component).
     """
 
     mean: TreeSequence | None
@@ -114,7 +118,7 @@ class FourDTreeModel(nn.Module):
         self.register_buffer("time_start", torch.tensor(0.0, dtype=torch.float64))
         self.register_buffer("duration", torch.tensor(1.0, dtype=torch.float64))
         self.register_buffer("obs_noise", torch.tensor(1.0, dtype=torch.float64))
-        self.register_buffer("forecast_gain", torch.tensor(0.0, dtype=torch.float64))
+        self.register_buffer("forecast_gain", torch.tensor(0.0, dtype=torch.float64))  # (k,) once fitted
         self.report_: dict[str, Any] = {}
 
     # ------------------------------------------------------------------------ state
@@ -133,6 +137,8 @@ class FourDTreeModel(nn.Module):
             self.sampler.n_modes = int(extra["n_modes"])
         if "forecast_gain" not in state_dict:  # checkpoints written before the gain existed: forecast the 4D mean
             state_dict = {**state_dict, "forecast_gain": torch.tensor(0.0, dtype=torch.float64)}
+        # the gain is one scalar (checkpoints before the per-component gain) or (k,): a shape, taken from the state
+        self.forecast_gain = torch.zeros_like(state_dict["forecast_gain"], dtype=torch.float64)
         return super().load_state_dict(state_dict, strict, assign)
 
     @property
@@ -178,7 +184,7 @@ class FourDTreeModel(nn.Module):
         self.obs_noise.fill_(max(FORECAST_NOISE * spread, unexplained, 1e-12))
         t0 = time.perf_counter()
         calibration = self._calibrate_forecast(sequences[:FORECAST_CALIBRATION_PLANTS])
-        self.forecast_gain.fill_(calibration["gain"])
+        self.forecast_gain = torch.tensor(calibration["gain"], dtype=torch.float64)
         t_forecast = time.perf_counter() - t0
         self.report_ = {
             "population": self.population.report_, "mean_energies": list(self.mean.energies_),
@@ -201,37 +207,57 @@ class FourDTreeModel(nn.Module):
         u = ((times.to(torch.float64) - float(first)) / float(self.duration)).clamp(0, 1)
         return time_warp_trajectory(self.mean.trajectory, u.to(self.mean.trajectory))
 
-    def _calibrate_forecast(self, sequences: Sequence[TreeSequence]) -> dict[str, float]:
-        """The forecast gain ``beta = rho s2 / (s2 + e2)`` from training plants observed over their first half.
+    def _calibrate_forecast(self, sequences: Sequence[TreeSequence]) -> dict[str, Any]:
+        """The forecast gains ``beta (k,)``, one per tree-PCA component, from training plants observed over their
+        first half.
 
-        A plant's deviation from the 4D mean at the same age persists: regressing its later frames' deviations on
-        its deviation at the middle frame gives ``rho`` (about 0.8-1 on synthetic plants). But a forecast sees that
-        frame encoded from the first half of the frames only, which differs from its encoding in the whole sequence
-        (each slot is parameterised by the latest frame that holds it, and the layout matching is that of a younger
-        tree) by about as much as plants differ from the mean: ``e2`` (that difference) against ``s2`` (the
-        deviation) is the classic noisy-measurement shrinkage. One encoding per plant (its first half); the whole
-        sequences are the fit's own frames. Keys: ``gain``, ``persistence`` (rho), ``signal``
-        and ``noise`` (s2, e2 per plant), ``plants``.
+        Each plant gives its deviation from the 4D mean at the same age at its last observed frame as a forecast
+        sees it, ``d`` (the first half encoded alone), and its later frames' deviations as the whole sequence
+        encodes them (the fit's own frames), averaged over those frames, ``f``. Per component ``c``,
+        ``beta_c = sum f_c d_c / sum d_c^2`` clipped to ``[0, 1]``: the least-squares share of the observed
+        deviation that persists. One scalar gain did not work: a prefix's encoding differs from the same frame in
+        its whole sequence (each slot is parameterised by the latest frame that holds it, and a young tree's layout
+        matching differs: half of a young frame's branches land in other slots, synthetic tomato) by about as much
+        as plants differ from the mean (issue 13), and that noise sits in other components than the part that
+        persists.
+
+        With a few training plants the per-component fit is itself noisy, so the gains are shrunk by the factor of
+        ``FORECAST_SHRINK`` with the smallest leave-one-out error (each plant forecast by the gains of the others,
+        mean tree-PCA distance over its later frames; ties to the larger factor), 0 (the 4D mean) included.
+        One encoding per plant (its first half). Keys: ``gain`` (k values), ``shrink``, ``loo_error`` (per factor,
+        relative to the 4D mean's), ``plants``.
         """
-        s2 = e2 = num = den = 0.0
         layout = self.population.layout_
         assert layout is not None, "called right after Population.fit (its training frames are not saved)"
         # the training frames as the fit wrote them (input order): the whole-sequence encodings, for free
         frames = self.population.pca.transform(layout).split([len(s) for s in self.population.sequences_])
+        d_rows, f_rows = [], []
         for seq, whole in zip(sequences, frames):
             half = len(seq) // 2
             whole = whole.to(self.mean.trajectory)
             prefix = self.population.transform(seq[list(range(half))]).frame_coefficients.to(whole)
-            dev = whole - self._mean_at_age(seq.times, seq.times[0]).to(whole)  # (n, k)
-            middle = dev[half - 1]
-            s2 += float(middle.square().sum())
-            e2 += float((prefix[-1] - whole[half - 1]).square().sum())
-            num += float((dev[half:] @ middle).sum())
-            den += float(middle.square().sum()) * (len(seq) - half)
-        rho = min(max(num / den, 0.0), 1.0) if den > 0 else 0.0
-        gain = rho * s2 / (s2 + e2) if s2 + e2 > 0 else 0.0
-        n = max(len(sequences), 1)
-        return {"gain": gain, "persistence": rho, "signal": s2 / n, "noise": e2 / n, "plants": len(sequences)}
+            mu = self._mean_at_age(seq.times, seq.times[0]).to(whole)  # (n, k)
+            d_rows.append(prefix[-1] - mu[half - 1])
+            f_rows.append(whole[half:] - mu[half:])
+        D = torch.stack(d_rows)  # (N, k)
+
+        def gains(rows: list[int]) -> Tensor:
+            """``(k,)`` least-squares gains of the plants ``rows``, clipped to [0, 1]."""
+            F = torch.stack([f_rows[i].mean(0) for i in rows])
+            return ((F * D[rows]).sum(0) / D[rows].square().sum(0).clamp_min(1e-300)).clamp(0, 1)
+
+        n = len(d_rows)
+        # leave-one-out error of each shrink factor: every plant forecast by the others' gains
+        held = [gains([j for j in range(n) if j != i]) for i in range(n)] if n >= 2 else []
+        errors = [sum(float((f_rows[i] - x * held[i] * D[i]).norm(dim=-1).mean()) for i in range(len(held)))
+                  for x in FORECAST_SHRINK]
+        best = min(range(len(FORECAST_SHRINK)), key=lambda j: (errors[j], -FORECAST_SHRINK[j]))
+        shrink = FORECAST_SHRINK[best] if held else 0.0
+        gain = shrink * gains(list(range(n)))
+        base = errors[FORECAST_SHRINK.index(0.0)]
+        return {"gain": [float(x) for x in gain], "shrink": shrink,
+                "loo_error": {str(x): e / base if base > 0 else 1.0 for x, e in zip(FORECAST_SHRINK, errors)},
+                "plants": n}
 
     # ------------------------------------------------------------------------ generation
     def sample_coefficients(self, n: int, generator: torch.Generator | None = None) -> Tensor:
@@ -300,14 +326,15 @@ class FourDTreeModel(nn.Module):
 
         The observed frames are written in the tree space (per-frame coordinates ``y_j`` at times ``t_j``, the last
         one ``y_L``). The forecast (``trajectory``, ``mean``) is the 4D mean at the plant's age plus the share
-        ``beta`` (``gain``, calibrated at :meth:`fit`) of the plant's deviation from it at its last observed frame::
+        ``beta (k,)`` (``forecast_gain``, per tree-PCA component, calibrated at :meth:`fit`) of the plant's deviation
+        from it at its last observed frame::
 
-            x(t) = mu(t - t_0) + beta (y_L - mu(t_L - t_0))
+            x(t) = mu(t - t_0) + beta * (y_L - mu(t_L - t_0))
 
         (``mu`` the 4D mean at an age over the training trees' mean duration ``D``, ``t_0`` the first observed
-        time): the plant's own size and shape persist, shrunk by how much of that deviation is encoding noise
-        (:meth:`_calibrate_forecast`). Conditioning the modes instead lost to the mean at the same age with 7
-        training plants (issue 13: the modes of a few plants carry little of a new plant's future).
+        time): what of the plants' own deviation persisted in the training plants, in the components where it did,
+        shrunk by leave-one-out (:meth:`_calibrate_forecast`). Conditioning the modes instead lost to the mean at the
+        same age with 7 training plants (issue 13: the modes of a few plants carry little of a new plant's future).
 
         Uncertainty: the conditional Gaussian of the mode coefficients given the observed part. The observed times
         are aligned onto the model's normalised time by ``u = r (t - t_0) / D`` (the rate ``r`` the best of
@@ -331,9 +358,10 @@ class FourDTreeModel(nn.Module):
         assert best is not None
         _, r, z, cov = best
         u_out = ((t_out - t_obs[0]) * r / D).clamp(0, 1)
-        gain = float(self.forecast_gain)
+        beta = self.forecast_gain.to(y)  # (k,), or () from a checkpoint before the per-component gain
+        gain = float(beta.mean())
         traj = self._mean_at_age(t_out, t_obs[0]).to(y)
-        traj = traj + gain * (y[-1] - self._mean_at_age(t_obs[-1:], t_obs[0]).to(y))  # (len(times), k)
+        traj = traj + beta * (y[-1] - self._mean_at_age(t_obs[-1:], t_obs[0]).to(y))  # (len(times), k)
         s_traj = z.new_zeros(0, len(t_out), traj.shape[-1])
         if n > 0:
             L = torch.linalg.cholesky(cov + 1e-12 * torch.eye(cov.shape[0], dtype=cov.dtype))
