@@ -242,17 +242,19 @@ def test_forecast_shapes(model: FourDTreeModel, plants: list) -> None:
 
 
 def test_forecast_carries_the_plants_own_deviation(model: FourDTreeModel, plants: list) -> None:
-    """The forecast is the 4D mean at the plant's age plus the fitted share of the plant's deviation from it at its
-    last observed frame: a plant seen 1.5 times larger is forecast larger, by that share of the difference."""
+    """The forecast is the 4D mean at the plant's age plus the fitted per-component share of the plant's deviation
+    from it at its last observed frame: a plant seen 1.5 times larger is forecast larger, by that share of the
+    difference."""
     from torch4dtree.trees.structures import TreeSequence
 
     seq = plants[3]
     big = TreeSequence(seq.frames.with_points(seq.frames.points * 1.5), seq.times, "big")
-    gain = float(model.forecast_gain)
-    assert 0 < gain < 1 and model.report_["forecast"]["gain"] == gain
+    gain = model.forecast_gain
+    assert gain.shape == (model.population.k,) and gain.tolist() == model.report_["forecast"]["gain"]
+    assert bool((gain >= 0).all() and (gain <= 1).all()) and float(gain.max()) > 0
     f = model.forecast(seq[[0, 1]], seq.times[2:], decode=False)
     g = model.forecast(big[[0, 1]], seq.times[2:], decode=False)
-    assert f.gain == g.gain == gain
+    assert f.gain == g.gain == float(gain.mean())
     y = model.population.transform(seq[[0, 1]]).frame_coefficients[-1]
     y_big = model.population.transform(big[[0, 1]]).frame_coefficients[-1]
     assert torch.allclose(g.trajectory - f.trajectory, (gain * (y_big - y)).expand_as(f.trajectory), atol=1e-9)
@@ -260,12 +262,36 @@ def test_forecast_carries_the_plants_own_deviation(model: FourDTreeModel, plants
     assert bool((inverse(g.trajectory).norm(dim=-1) > inverse(f.trajectory).norm(dim=-1)).all())
 
 
-def test_forecast_beats_baselines() -> None:
-    """Issue 13's must-hold, on 3 held-out synthetic plants (about 10 s; it ran only behind TORCH4DTREE_SLOW while
-    the fit took a minute)."""
+def test_persistence_gains_follow_what_persists() -> None:
+    """The forecast's gains: a deviation that persists at half strength in some components gives gains near 0.5
+    there and near 0 elsewhere; one that does not persist at all gives the 4D mean (shrink factor 0)."""
+    from torch4dtree.model.fourd import persistence_gains
+
+    g = torch.Generator().manual_seed(0)
+    d = torch.randn(12, 4, generator=g, dtype=torch.float64)
+    keep = torch.tensor([1.0, 1.0, 0.0, 0.0], dtype=torch.float64)
+    f = [0.5 * keep * d[i] + 0.05 * torch.randn(3, 4, generator=g, dtype=torch.float64) for i in range(12)]
+    gain, shrink, errors = persistence_gains(d, f)
+    assert shrink == 1.0 and errors[-1] < 0.5 * errors[0]
+    assert torch.allclose(gain[:2], torch.full((2,), 0.5, dtype=torch.float64), atol=0.05)
+    assert bool((gain[2:] < 0.05).all())
+    f = [torch.randn(3, 4, generator=g, dtype=torch.float64) for _ in range(12)]
+    gain, shrink, errors = persistence_gains(d, f)
+    assert shrink == 0.0 and bool((gain == 0).all()) and errors[0] == min(errors)
+    gain, shrink, _ = persistence_gains(d[:1], f[:1])  # one plant: nothing to validate on
+    assert shrink == 0.0 and bool((gain == 0).all())
+
+
+@pytest.mark.parametrize("kind", ["tomato", "maize"])
+def test_forecast_beats_baselines(kind: str) -> None:
+    """Issue 13's must-hold on 5 held-out synthetic plants of each kind (fit on 7; about 10 s each).
+
+    Margins over the population mean here: tomato 69.8 vs 70.7, maize 62.7 vs 73.1 (other seeds: maize wins by
+    6-14 %, tomato is within noise, -7 % .. +2 %: a young tomato's branches land in other layout slots than in its
+    whole sequence, so little of its observed deviation carries over)."""
     from torch4dtree.data import synthetic_dataset
 
-    seqs = [p.sequence for p in synthetic_dataset("tomato", plants=10, seed=3, n_frames=6, T=16)]
+    seqs = [p.sequence for p in synthetic_dataset(kind, plants=12, seed=3, n_frames=6, T=16)]
     m = FourDTreeModel(n_t=16).fit(seqs[:7])
     errs = {"forecast": 0.0, "last": 0.0, "mean": 0.0}
     for h in seqs[7:]:

@@ -26,7 +26,7 @@ from ..trees.structures import Trees, TreeSequence
 from .sampler import TruncatedNormalSampler
 from .trajectory import TrajectoryMean, TrajectoryPCA, flatten_srvf
 
-__all__ = ["FourDTreeModel", "Forecast", "ModelOutput", "Score"]
+__all__ = ["FourDTreeModel", "Forecast", "ModelOutput", "Score", "persistence_gains"]
 
 # forecast: candidate time-rate factors of the observed part (its affine temporal alignment onto the model), with a
 # log-normal prior of this spread on the rate (without it, the widest rates won on synthetic plants and forecasts lost
@@ -222,8 +222,8 @@ class FourDTreeModel(nn.Module):
         persists.
 
         With a few training plants the per-component fit is itself noisy, so the gains are shrunk by the factor of
-        ``FORECAST_SHRINK`` with the smallest leave-one-out error (each plant forecast by the gains of the others,
-        mean tree-PCA distance over its later frames; ties to the larger factor), 0 (the 4D mean) included.
+        ``FORECAST_SHRINK`` with the smallest leave-one-out error, 0 (the 4D mean) included
+        (:func:`persistence_gains`).
         One encoding per plant (its first half). Keys: ``gain`` (k values), ``shrink``, ``loo_error`` (per factor,
         relative to the 4D mean's), ``plants``.
         """
@@ -239,25 +239,11 @@ class FourDTreeModel(nn.Module):
             mu = self._mean_at_age(seq.times, seq.times[0]).to(whole)  # (n, k)
             d_rows.append(prefix[-1] - mu[half - 1])
             f_rows.append(whole[half:] - mu[half:])
-        D = torch.stack(d_rows)  # (N, k)
-
-        def gains(rows: list[int]) -> Tensor:
-            """``(k,)`` least-squares gains of the plants ``rows``, clipped to [0, 1]."""
-            F = torch.stack([f_rows[i].mean(0) for i in rows])
-            return ((F * D[rows]).sum(0) / D[rows].square().sum(0).clamp_min(1e-300)).clamp(0, 1)
-
-        n = len(d_rows)
-        # leave-one-out error of each shrink factor: every plant forecast by the others' gains
-        held = [gains([j for j in range(n) if j != i]) for i in range(n)] if n >= 2 else []
-        errors = [sum(float((f_rows[i] - x * held[i] * D[i]).norm(dim=-1).mean()) for i in range(len(held)))
-                  for x in FORECAST_SHRINK]
-        best = min(range(len(FORECAST_SHRINK)), key=lambda j: (errors[j], -FORECAST_SHRINK[j]))
-        shrink = FORECAST_SHRINK[best] if held else 0.0
-        gain = shrink * gains(list(range(n)))
+        gain, shrink, errors = persistence_gains(torch.stack(d_rows), f_rows)
         base = errors[FORECAST_SHRINK.index(0.0)]
         return {"gain": [float(x) for x in gain], "shrink": shrink,
                 "loo_error": {str(x): e / base if base > 0 else 1.0 for x, e in zip(FORECAST_SHRINK, errors)},
-                "plants": n}
+                "plants": len(d_rows)}
 
     # ------------------------------------------------------------------------ generation
     def sample_coefficients(self, n: int, generator: torch.Generator | None = None) -> Tensor:
@@ -405,6 +391,36 @@ class FourDTreeModel(nn.Module):
         from .checkpoint import save_model
 
         return str(save_model(self, path, config, overwrite=overwrite))
+
+
+def persistence_gains(d: Tensor, f: Sequence[Tensor], shrinks: Sequence[float] = FORECAST_SHRINK
+                      ) -> tuple[Tensor, float, list[float]]:
+    """Per-component gains of deviations that persist, shrunk by leave-one-out (:meth:`FourDTreeModel.forecast`).
+
+    Args:
+        d: ``(N, k)`` each plant's observed deviation (from the 4D mean, at its last observed frame).
+        f: ``N`` tensors ``(n_i, k)``: each plant's later deviations.
+        shrinks: candidate factors (include 0: the gains can vanish where nothing persists).
+
+    Returns:
+        ``gain (k,)`` = the factor times ``beta_c = sum_i mean_j f_ijc d_ic / sum_i d_ic^2`` clipped to ``[0, 1]``;
+        the factor, the one with the smallest leave-one-out error (plant ``i`` forecast by the others' ``beta``,
+        error = mean over its later frames of the distance ``|f_ij - x beta d_i|``; ties to the smaller factor);
+        and those errors per factor. With fewer than 2 plants the factor is 0.
+    """
+    f_mean = torch.stack([x.mean(0) for x in f])  # (N, k)
+
+    def beta(rows: list[int]) -> Tensor:
+        return ((f_mean[rows] * d[rows]).sum(0) / d[rows].square().sum(0).clamp_min(1e-300)).clamp(0, 1)
+
+    n = d.shape[0]
+    held = [beta([j for j in range(n) if j != i]) for i in range(n)] if n >= 2 else []
+    errors = [sum(float((f[i] - x * held[i] * d[i]).norm(dim=-1).mean()) for i in range(len(held)))
+              for x in shrinks]
+    # ties (one plant, or no deviation at all) go to the smaller factor: the 4D mean unless the plants show better
+    best = min(range(len(shrinks)), key=lambda j: (errors[j], shrinks[j]))
+    x = float(shrinks[best]) if held else 0.0
+    return x * beta(list(range(n))), x, errors
 
 
 def sequence_validity(seq: TreeSequence | Trees, tol: float = 1e-6) -> list[str]:
