@@ -270,8 +270,9 @@ def robustness_figure(report: dict, path: Path) -> Path | None:
 # ---------------------------------------------------------------------------------- line plots
 def _nice_ticks(lo: float, hi: float, n: int = 5) -> list[float]:
     """About ``n`` round tick values (1, 2, 5 times a power of ten) covering ``[lo, hi]``."""
-    if not hi > lo:
-        hi = lo + (abs(lo) or 1.0)
+    if not hi > lo:  # a constant: centred in a range 10 % of its size (a flat 100 % line sits mid-plot)
+        pad = 0.05 * abs(lo) or 1.0
+        lo, hi = lo - pad, hi + pad
     raw = (hi - lo) / max(n - 1, 1)
     mag = 10 ** math.floor(math.log10(raw))
     step = next(m * mag for m in (1, 2, 5, 10) if m * mag >= raw)

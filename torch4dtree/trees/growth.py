@@ -21,12 +21,7 @@ import numpy as np
 import torch
 
 from .registration import effective_lambdas, register_to_reference
-from .skeleton import (
-    _children,
-    continuation_children,
-    skeleton_to_trees,
-    validate_skeleton,
-)
+from .skeleton import follow_continuations, resolve_branch_points, skeleton_to_trees
 from .structures import DEFAULT_T, Trees
 
 __all__ = ["alternative_main_paths", "consistent_frames"]
@@ -58,18 +53,10 @@ def alternative_main_paths(xyz: np.ndarray, parent: np.ndarray, hierarchy: str =
     """
     xyz = np.asarray(xyz, dtype=np.float64)
     parent = np.asarray(parent, dtype=np.int64)
-    order = validate_skeleton(xyz, parent, where, ids)
-    children = _children(parent)
-    edge = np.zeros(len(xyz))
-    has_parent = parent >= 0
-    edge[has_parent] = np.linalg.norm(xyz[has_parent] - xyz[parent[has_parent]], axis=1)
-    best = continuation_children(xyz, parent, order, children, edge, hierarchy, where, window)
+    order, children, _, best = resolve_branch_points(xyz, parent, hierarchy, where, ids, window)
 
     def follow(start: int) -> list[int]:
-        path = [start]
-        while best[path[-1]] >= 0:
-            path.append(int(best[path[-1]]))
-        return path
+        return follow_continuations(best, start)
 
     main = follow(int(order[0]))
     forks = [i for i, v in enumerate(main[:-1]) if len(children[v]) > 1][-top:] if top > 0 else []

@@ -244,6 +244,28 @@ def continuation_children(xyz: np.ndarray, parent: np.ndarray, order: np.ndarray
     return best
 
 
+def resolve_branch_points(xyz: np.ndarray, parent: np.ndarray, hierarchy: str = "straightest",
+                          where: str = "skeleton", ids: np.ndarray | None = None, window: float | None = None
+                          ) -> tuple[np.ndarray, list[list[int]], np.ndarray, np.ndarray]:
+    """A validated skeleton's ``(order, children, edge, best)``: breadth-first node order, children lists, the
+    length ``(n,)`` of each node's edge to its parent and the child ``best (n,)`` the rule continues into (``-1`` at
+    leaves)."""
+    order = validate_skeleton(xyz, parent, where, ids)
+    children = _children(parent)
+    edge = np.zeros(len(xyz))
+    has_parent = parent >= 0
+    edge[has_parent] = np.linalg.norm(xyz[has_parent] - xyz[parent[has_parent]], axis=1)
+    return order, children, edge, continuation_children(xyz, parent, order, children, edge, hierarchy, where, window)
+
+
+def follow_continuations(best: np.ndarray, start: int) -> list[int]:
+    """The path from node ``start`` down through the continuation children ``best`` to a leaf."""
+    path = [start]
+    while best[path[-1]] >= 0:
+        path.append(int(best[path[-1]]))
+    return path
+
+
 def skeleton_to_branches(
     xyz: np.ndarray,
     parent: np.ndarray,
@@ -276,22 +298,14 @@ def skeleton_to_branches(
     """
     xyz = np.asarray(xyz, dtype=np.float64)
     parent = np.asarray(parent, dtype=np.int64)
-    order = validate_skeleton(xyz, parent, where, ids)
-    children = _children(parent)
-    edge = np.zeros(len(xyz))
-    has_parent = parent >= 0
-    edge[has_parent] = np.linalg.norm(xyz[has_parent] - xyz[parent[has_parent]], axis=1)
+    order, children, edge, best = resolve_branch_points(xyz, parent, hierarchy, where, ids, window)
     reach = np.zeros(len(xyz))  # longest path length from a node down to a leaf
     for v in order[::-1]:
         for c in children[v]:
             reach[v] = max(reach[v], edge[c] + reach[c])
-    best = continuation_children(xyz, parent, order, children, edge, hierarchy, where, window)
 
     def follow(start: int) -> list[int]:
-        path = [start]
-        while best[path[-1]] >= 0:
-            path.append(int(best[path[-1]]))
-        return path
+        return follow_continuations(best, start)
 
     root = int(order[0])
     if main_path is not None:
