@@ -286,8 +286,8 @@ def test_persistence_gains_follow_what_persists() -> None:
 def test_forecast_beats_baselines(kind: str) -> None:
     """Issue 13's must-hold on 5 held-out synthetic plants of each kind (fit on 7; about 10 s each).
 
-    Margins over the population mean here: tomato 69.8 vs 70.7, maize 62.7 vs 73.1 (other seeds: maize wins by
-    6-14 %, tomato is within noise, -7 % .. +2 %: a young tomato's branches land in other layout slots than in its
+    Margins over the population mean here: tomato 69.8 vs 70.7, maize 62.7 vs 73.1. Seeds 3-8: maize wins by
+    6-23 %; tomato is within noise, -7 % .. +2 % (a young tomato's branches land in other layout slots than in its
     whole sequence, so little of its observed deviation carries over)."""
     from torch4dtree.data import synthetic_dataset
 
