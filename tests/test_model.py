@@ -339,3 +339,16 @@ def test_large_batches_of_trajectories_equal_small_ones() -> None:
     z = torch.randn(2, SAMPLE_CHUNK + 3, pca.n_modes, dtype=torch.float64, generator=torch.Generator().manual_seed(0))
     rows = torch.stack([torch.cat([pca.trajectories(c) for c in x.split(100)]) for x in z])
     assert torch.allclose(pca.trajectories(z), rows, atol=1e-12)
+
+
+def test_sequences_at_another_resolution_are_encoded_at_the_fits(model: FourDTreeModel, plants: list) -> None:
+    """Frames read with another T than the fit's (a checkpoint without its config makes the CLI read them at the
+    default T) are resampled to the layout's T, not failed on with a shape error deep inside."""
+    from torch4dtree.trees.structures import TreeSequence
+
+    seq = plants[1]
+    fine = TreeSequence(seq.frames.resample(3 * seq.frames.T), seq.times, seq.name)
+    z, z_fine = model.encode(seq), model.encode(fine)
+    assert z_fine.shape == z.shape and torch.allclose(z_fine, z, atol=0.05 * float(z.abs().max()) + 1e-6)
+    f = model.forecast(fine[[0, 1]], seq.times[2:], decode=False)
+    assert f.trajectory.shape[-1] == model.population.k

@@ -266,6 +266,12 @@ class Population(FittedModule):
         if not isinstance(sequence, TreeSequence):
             raise TypeError(f"expected a TreeSequence, got {type(sequence).__name__}")
         seq = sequence.to(device=self.ref_points.device, dtype=torch.float64)
+        T = self.ref_points.shape[1]
+        if seq.frames.T != T:  # frames read at another resolution than the fit's: the layout's slots have T points
+            if aligned is not None:
+                raise ValueError(f"aligned has {seq.frames.T} points per branch, the fitted layout {T}: "
+                                 f"register the sequence resampled to T = {T}")
+            seq = TreeSequence(seq.frames.resample(T), seq.times, seq.name)
         if aligned is None:
             aligned = register_sequence(seq, **self.registration)  # as in fit
         rep = representative_tree(aligned)
