@@ -16,7 +16,7 @@ import numpy as np
 import torch
 
 from ..curves.srvf import resample_polylines
-from ..io import read_swc_skeleton, read_tree
+from ..io import LoadOptions, read_sequence, read_swc_skeleton, read_tree
 from ..trees.skeleton import HIERARCHIES, skeleton_to_branches
 
 
@@ -64,13 +64,27 @@ def day_pairs(root: str | Path) -> list[tuple[str, Path, Path]]:
     return out
 
 
-def main_branch_agreement(root: str | Path, rules: tuple[str, ...] = HIERARCHIES, tol_fraction: float = 0.02,
-                          max_root_gap: float = 5.0) -> dict:
+JOINT = "straightest, joint over time"
+
+
+def main_branch_agreement(root: str | Path, rules: tuple[str, ...] = (*HIERARCHIES, JOINT),
+                          tol_fraction: float = 0.02, max_root_gap: float = 5.0) -> dict:
     """Per rule and species: how the SWC main branch compares with the hand-corrected ``.mat`` main branch (the stem)
     of the same day: mean precision (share of the SWC main branch on the stem), recall (share of the stem covered),
     F1, and the share of days whose main branch covers the stem (recall >= 0.9) without running far beyond it
     (precision >= 0.6). ``tol = tol_fraction * plant height`` (at least 2 mm). Days whose roots lie more than
-    ``max_root_gap`` mm apart in the two files (differently cropped scans) cannot be compared and are counted apart."""
+    ``max_root_gap`` mm apart in the two files (differently cropped scans) cannot be compared and are counted apart.
+    Rule :data:`JOINT`: the main branch as :func:`~torch4dtree.io.read_sequence` chooses it over the plant's whole
+    SWC sequence (:mod:`torch4dtree.trees.growth`), resampled at 64 points."""
+    joint_mains: dict[Path, np.ndarray] = {}
+
+    def joint_main(swc: Path) -> np.ndarray:
+        if swc not in joint_mains:  # one read per plant folder
+            loaded = read_sequence(swc.parent, LoadOptions(T=64, repair=True, dtype=torch.float64))
+            for k, name in enumerate(loaded.files):
+                joint_mains[swc.parent / name] = loaded.sequence.frames[k].points[0].numpy()
+        return joint_mains[swc]
+
     rows: dict[str, dict[str, list[tuple[float, float, float]]]] = {r: {"tomato": [], "maize": []} for r in rules}
     skipped = {"tomato": 0, "maize": 0}
     for plant, swc, mat in day_pairs(root):
@@ -87,8 +101,11 @@ def main_branch_agreement(root: str | Path, rules: tuple[str, ...] = HIERARCHIES
         height = float(sk.xyz[:, 2].max() - sk.xyz[:, 2].min())
         tol = max(tol_fraction * height, 2.0)
         for rule in rules:
-            polys, _, _ = skeleton_to_branches(sk.xyz, sk.parent, where=str(swc), hierarchy=rule)
-            rows[rule][kind].append(polyline_agreement(polys[0] + shift, stem, tol))
+            if rule == JOINT:
+                main = joint_main(swc)
+            else:
+                main = skeleton_to_branches(sk.xyz, sk.parent, where=str(swc), hierarchy=rule)[0][0]
+            rows[rule][kind].append(polyline_agreement(main + shift, stem, tol))
     out: dict = {"skipped_days": skipped}
     for rule, kinds in rows.items():
         out[rule] = {}
