@@ -101,7 +101,7 @@ from ..trees.growth import consistent_frames
 from ..trees.skeleton import skeleton_to_trees
 from ..trees.structures import DEFAULT_T, Trees, TreeSequence
 
-KINDS = ("tomato", "maize", "bean")
+KINDS = ("tomato", "maize", "bean", "almond")  # a new kind goes at the end: indices seed the rng streams
 STEM_LABEL = 0
 SPUR_LABEL = 99
 SHOOT_OFFSET = 50  # a digit pair 50 + k names the side shoot from the axil of leaf k
@@ -214,6 +214,12 @@ def _bean_develop(b: float) -> float:
     return 38.0 + 200.0 * (b + 0.3 * b * b) / 1.3
 
 
+def _almond_develop(b: float) -> float:
+    # trunk ~160 mm at the first scan, ~560 mm at the last, over two flushes: growth nearly stops at
+    # b = 0, 1/2 and 1 (the dormant seasons' edges) and is fastest mid-season
+    return 160.0 + 400.0 * (b - 0.8 * math.sin(4 * math.pi * b) / (4 * math.pi))
+
+
 _MODELS = {
     "tomato": _KindModel("tomato", _tomato_develop, node_drift=0.3, tau=1.5, droop_pow=1.6, node_spacing=1.35,
                          spur_rate=0.5),
@@ -221,6 +227,9 @@ _MODELS = {
                         spur_rate=0.12),
     "bean": _KindModel("bean", _bean_develop, node_drift=0.25, tau=2.0, droop_pow=1.6, node_spacing=1.4,
                        spur_rate=0.3),
+    # wood: internodes stop stretching once lignified (little drift), bends are stiff (low droop power)
+    "almond": _KindModel("almond", _almond_develop, node_drift=0.03, tau=4.0, droop_pow=1.3, node_spacing=1.4,
+                         spur_rate=0.3),
 }
 
 
@@ -265,6 +274,11 @@ class _PlantModel:
     stem_lean: np.ndarray  # (2,) horizontal lean of the stem direction
     stem_wobble: np.ndarray  # (2, 3, 3) per horizontal axis: (amplitude, wavelength mm, phase) x 3
     organs: list[_Organ]
+    # almond: the leader bends away above arc length `bend_from` (nominal mm), its lateral slopes
+    # ramping to `leader_bend (2,)` over `bend_ramp` mm; None: no bend (the herbaceous kinds)
+    bend_from: float | None = None
+    leader_bend: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    bend_ramp: float = 1.0
 
 
 def _horizontal(rng: np.random.Generator, magnitude: float) -> np.ndarray:
@@ -464,7 +478,82 @@ def _bean_structure(rng: np.random.Generator) -> _PlantModel:
     return _PlantModel(_MODELS["bean"], size, lean, wob, organs)
 
 
-_STRUCTURES = {"tomato": _tomato_structure, "maize": _maize_structure, "bean": _bean_structure}
+def _almond_structure(rng: np.random.Generator) -> _PlantModel:
+    # A young almond tree over two flushes, wood only. Apical dominance is weak: scaffolds near the top are the
+    # most vigorous and outgrow the leader above them, which in about half of the trees arches away.
+    size = rng.uniform(0.88, 1.12)
+    lean = _horizontal(rng, math.tan(rng.uniform(2.0, 12.0) * _DEG))  # trunks lean (wind, no stake)
+    wob = np.stack([_stem_wobble(rng, 0.05) for _ in range(2)])
+    organs = [_Organ(label=STEM_LABEL, parent=-1, role="stem")]
+    phi0 = rng.uniform(0, 2 * math.pi)
+    n_scaffolds = int(rng.integers(3, 6))
+    lo, hi = 70.0, 400.0  # trunk heights (nominal mm) of the scaffolds' buds, one per slot at random within it
+    nodes = lo + (hi - lo) * (np.arange(n_scaffolds) + rng.uniform(0.15, 0.85, n_scaffolds)) / n_scaffolds
+    end_clock = _almond_develop(1.0)
+    for k, F in enumerate(nodes.tolist(), 1):
+        rel = (F - lo) / (hi - lo)  # 0 at the bottom, 1 at the top: acrotony, the upper ones grow most
+        theta = rng.uniform(30.0, 60.0) * _DEG
+        scaffold = len(organs)
+        onset = F + 30.0 + rng.uniform(-5, 5)
+        organs.append(_Organ(
+            label=SHOOT_OFFSET + k, parent=0, role="shoot", onset=onset, node=F, depth=30.0,
+            max_len=(230.0 + 170.0 * rel) * rng.normal(1, 0.12), width=160.0 * rng.normal(1, 0.1),
+            theta_young=theta - 12 * _DEG, theta_mature=theta,
+            phi=phi0 + (k - 1) * 144.0 * _DEG + rng.normal(0, 20 * _DEG),  # 2/5 phyllotaxis
+            droop=(rng.uniform(-30, -10) if rel > 0.5 else rng.uniform(-10, 15)) * _DEG, droop_max=35 * _DEG,
+            wobble_theta=_wobble(rng, 0.08), wobble_phi=_wobble(rng, 0.10),
+        ))
+        sc = organs[scaffold]
+        sc_end = sc.max_len * -math.expm1(-(end_clock - onset) / sc.width)  # its clock at the last scan
+        # laterals on the scaffold: secondary shoots from buds every ~45 mm that break once the scaffold has
+        # grown 40 mm beyond them, and spurs (short shoots) on the older wood; numbered from the scaffold's base
+        laterals: list[tuple[float, str]] = []
+        F2 = 30.0 + rng.uniform(-10, 10)
+        while F2 + 40.0 < sc_end:
+            if rng.uniform() < 0.5:
+                laterals.append((F2, "shoot"))
+            F2 += 45.0 + rng.uniform(-10, 10)
+        for _ in range(int(rng.poisson(3.0))):
+            laterals.append((rng.uniform(15.0, max(0.7 * sc_end, 20.0)), "spur"))
+        laterals.sort()
+        side = 1.0 if rng.uniform() < 0.5 else -1.0
+        for j, (F2, what) in enumerate(laterals[:48], 1):
+            if what == "spur":
+                organs.append(_spur(rng, sc.label * 100 + SHOOT_OFFSET + j, scaffold, F2, delay=150.0))
+                continue
+            side = -side
+            shoot = len(organs)
+            organs.append(_Organ(
+                label=sc.label * 100 + SHOOT_OFFSET + j, parent=scaffold, role="shoot", onset=F2 + 40.0,
+                node=F2, depth=35.0, max_len=rng.uniform(60.0, 140.0), width=90.0 * rng.normal(1, 0.1),
+                theta_young=rng.uniform(30, 45) * _DEG, theta_mature=rng.uniform(45, 70) * _DEG,
+                phi=sc.phi + side * rng.uniform(40, 80) * _DEG, droop=rng.uniform(-15, 15) * _DEG,
+                droop_max=25 * _DEG, wobble_theta=_wobble(rng, 0.08), wobble_phi=_wobble(rng, 0.10),
+            ))
+            sec = organs[shoot]
+            spurs = np.sort(rng.uniform(10.0, max(0.6 * sec.max_len, 15.0), int(rng.integers(0, 3))))
+            for m, F3 in enumerate(spurs.tolist(), 1):
+                organs.append(_spur(rng, sec.label * 100 + SHOOT_OFFSET + m, shoot, F3, delay=60.0))
+    if rng.uniform() < 0.5:  # a weak leader arching away above the top scaffold
+        bend_from = float(nodes[-1]) + rng.uniform(0.0, 40.0)
+        return _PlantModel(_MODELS["almond"], size, lean, wob, organs, bend_from=bend_from,
+                           leader_bend=_horizontal(rng, math.tan(rng.uniform(15.0, 40.0) * _DEG)),
+                           bend_ramp=rng.uniform(60.0, 120.0))
+    return _PlantModel(_MODELS["almond"], size, lean, wob, organs)
+
+
+def _spur(rng: np.random.Generator, label: int, parent: int, node: float, delay: float) -> _Organ:
+    """A spur (a short shoot on older wood) at ``node``: it breaks once its axis has grown ~``delay`` mm past it."""
+    return _Organ(
+        label=label, parent=parent, role="shoot", onset=node + delay + rng.uniform(-20, 20), node=node, depth=40.0,
+        max_len=rng.uniform(6.0, 25.0), width=20.0, theta_young=rng.uniform(50, 100) * _DEG,
+        theta_mature=rng.uniform(50, 100) * _DEG, phi=rng.uniform(0, 2 * math.pi), droop=0.0,
+        wobble_theta=_wobble(rng, 0.03), wobble_phi=_wobble(rng, 0.03),
+    )
+
+
+_STRUCTURES = {"tomato": _tomato_structure, "maize": _maize_structure, "bean": _bean_structure,
+               "almond": _almond_structure}
 
 
 # ------------------------------------------------------------------------- growth in time
@@ -557,6 +646,11 @@ def _stem_points(plant: _PlantModel, L: float, jitter: np.ndarray, step: float =
         + noise[ax]
         for ax in range(2)
     ]
+    if plant.bend_from is not None:  # a weak leader arching over (fixed in arc length: the stem still only extends)
+        start = plant.size * plant.bend_from
+        ramp = np.clip((a - start) / (plant.size * plant.bend_ramp), 0.0, 1.0)
+        ramp = ramp * ramp * (3 - 2 * ramp)
+        lateral = [lateral[ax] + plant.leader_bend[ax] * ramp for ax in range(2)]
     d = np.stack([lateral[0], lateral[1], np.ones(n)], -1)
     return _polyline(np.zeros(3), d / np.linalg.norm(d, axis=-1, keepdims=True), L)
 
