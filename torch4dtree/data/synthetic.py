@@ -1,4 +1,4 @@
-"""Synthetic growing plants (tomato, maize and bean 4D skeletons) with organ-level ground truth.
+"""Synthetic growing plants (tomato, maize, bean and almond 4D skeletons) with organ-level ground truth.
 
 **What a plant is.** Every frame of a plant is a *skeleton graph*, as a skeletonised laser scan
 gives it (Pheno4D, SPEC §6): nodes ``xyz (n, 3)`` (mm, z up, the root at the origin), parent
@@ -47,6 +47,16 @@ an organ present at one frame is present at all later frames.
   continuing it); in most plants, true side shoots from the axils of the primary and lower
   leaves bearing trifoliate leaves of their own: 4 layers of organs. 100-130 nodes on the first
   day, 1000-2000 on the last.
+* ``almond``: a young almond tree over two flushes of growth (slow at the first, middle and
+  last scans), wood only. A trunk (~160 mm at the first scan, ~560 at the last) leaning
+  2-12 degrees; 3-5 scaffolds (sylleptic shoots) from buds at different heights (70-400 mm) and
+  azimuths (2/5 phyllotaxis, 144 degrees), leaving at 30-60 degrees from vertical. Apical dominance
+  is weak: the upper scaffolds are the most vigorous and curve upwards, the top one outgrows
+  the trunk above it, and in half of the trees the leader itself arches 15-40 degrees away above
+  the top scaffold. On each scaffold, secondary shoots break from buds every ~45 mm once it has
+  grown past them, and spurs (short shoots, 6-25 mm: as long as skeletonisation spurs) appear on
+  the older wood of scaffolds and shoots: 4 layers. Nodes never move once laid down (wood).
+  100-135 nodes on the first day, 1200-2200 on the last; the tree spans 140-175 mm, then 500-650.
 
 In every frame of these plants (as in every frame of the Pheno4D skeletons, measured against
 the hand-corrected trees) the longest root-to-leaf path leaves the stem for a leaf or a shoot,
@@ -65,9 +75,12 @@ path of base-100 digits, one per step from the stem (see :func:`label_parts`):
 * ``0``: the main stem;
 * ``k`` (1..49): the k-th leaf from the bottom of the stem. Tomato: 1 and 2 are the cotyledons
   (one node, opposite), 3, 4, ... the true leaves. Maize: 1, 2, ... alternating on opposite
-  sides. Bean: 1 and 2 the opposite primary leaves, 3, 4, ... the trifoliate leaves;
-* ``50 + k`` (51..98): the side shoot from the axil of leaf ``k`` (same node as that leaf);
+  sides. Bean: 1 and 2 the opposite primary leaves, 3, 4, ... the trifoliate leaves. Almond: none;
+* ``50 + k`` (51..98): the side shoot from the axil of leaf ``k`` (same node as that leaf). Almond:
+  the ``k``-th scaffold from the bottom of the trunk (its leaf is gone);
 * ``P * 100 + i`` with ``P`` a shoot label and ``i`` (1..49): the i-th leaf of that shoot;
+* ``P * 100 + 50 + j`` with ``P`` a shoot label: almond, the ``j``-th lateral (secondary shoot
+  or spur, a short shoot) from the base of shoot ``P``;
 * ``L * 100 + j`` with ``L`` a leaf label and ``j`` (1..49): leaflet ``j`` of that leaf:
   ``j = 2 p - 1`` / ``2 p`` for the left / right leaflet of pair ``p`` from the leaf's base
   (the terminal leaflet is the continuation of the rachis, part of the leaf itself);
@@ -215,9 +228,9 @@ def _bean_develop(b: float) -> float:
 
 
 def _almond_develop(b: float) -> float:
-    # trunk ~160 mm at the first scan, ~560 mm at the last, over two flushes: growth nearly stops at
-    # b = 0, 1/2 and 1 (the dormant seasons' edges) and is fastest mid-season
-    return 160.0 + 400.0 * (b - 0.8 * math.sin(4 * math.pi * b) / (4 * math.pi))
+    # trunk ~160 mm at the first scan, ~560 mm at the last, over two flushes: growth slows to 0.4x its mean
+    # at b = 0, 1/2 and 1 (towards the dormant seasons) and is fastest (1.6x) mid-season
+    return 160.0 + 400.0 * (b - 0.6 * math.sin(4 * math.pi * b) / (4 * math.pi))
 
 
 _MODELS = {
@@ -818,7 +831,7 @@ class SyntheticPlant:
         sequence: the 4D tree derived from :attr:`skeletons` by
             :func:`~torch4dtree.trees.skeleton.skeleton_to_trees` (with the plant's ``hierarchy_kwargs``);
             ``sequence.frames.label`` is each branch's majority organ (module doc).
-        kind: ``"tomato"``, ``"maize"`` or ``"bean"``.
+        kind: ``"tomato"``, ``"maize"``, ``"bean"`` or ``"almond"``.
         seed: the seed that regenerates this plant alone (``synthetic_plant(kind, seed, ...)``).
         growth_grid: ``(G,)`` normalised calendar times ``linspace(0, 1, G)``.
         growth_warp: ``(G,)`` the biological clock ``h`` on ``growth_grid`` (monotone, ``h(0)=0``,
@@ -918,8 +931,9 @@ def synthetic_plant(
 
     Args:
         kind: ``"tomato"`` (stem, cotyledons, compound leaves with leaflets and lobes, basal side
-            shoots), ``"maize"`` (stem and whorl, two-ranked arching leaves) or ``"bean"`` (primary
-            leaves, trifoliate leaves, side shoots with leaves of their own); see the module doc.
+            shoots), ``"maize"`` (stem and whorl, two-ranked arching leaves), ``"bean"`` (primary
+            leaves, trifoliate leaves, side shoots with leaves of their own) or ``"almond"`` (a young
+            tree's wood: trunk, scaffolds, secondary shoots, spurs); see the module doc.
         seed: any non-negative int; the same seed gives the same plant.
         n_frames: number of frames when ``times`` is not given.
         times: ``(n_frames,)`` strictly increasing acquisition times (any unit); default:
@@ -932,7 +946,7 @@ def synthetic_plant(
         grid_size: points of the growth-warp grid.
         dtype: dtype of the derived trees' points.
         name: the sequence name.
-        node_spacing: mean distance (mm) between skeleton nodes; default the kind's (1.15-1.35).
+        node_spacing: mean distance (mm) between skeleton nodes; default the kind's (1.15-1.4).
         jitter: standard deviation (mm) of the per-node position noise; 0 for none.
         spurs: multiplier of the kind's rate of skeletonisation spurs; 0 for none.
         hierarchy_kwargs: keyword arguments of :func:`~torch4dtree.trees.skeleton.skeleton_to_trees` (the
