@@ -227,7 +227,7 @@ def pooled_scores(pairs, lambdas=IDENTITY_LAMBDAS, **kw):
     return hit_p / tot_p, hit_r / tot_r
 
 
-@pytest.mark.parametrize("kind", ["tomato", "maize", "bean"])
+@pytest.mark.parametrize("kind", ["tomato", "maize", "bean", "almond"])
 def test_identities_survive_growth_between_consecutive_frames(kind):
     from torch4dtree.data import synthetic_plant
 

@@ -8,9 +8,10 @@ from .options import int_at_least, non_negative_int, positive_int
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--kind", choices=["tomato", "maize", "bean"], default="tomato",
-                   help="tomato (3-4 branch layers, basal side shoots), maize (2 layers, two-ranked leaves) or bean "
-                        "(trifoliate leaves and side shoots, 4 layers) (default: %(default)s)")
+    p.add_argument("--kind", choices=["tomato", "maize", "bean", "almond"], default="tomato",
+                   help="tomato (3-4 branch layers, basal side shoots), maize (2 layers, two-ranked leaves), bean "
+                        "(trifoliate leaves and side shoots, 4 layers) or almond (a young tree's wood: trunk, "
+                        "scaffolds, shoots, spurs; 4 layers) (default: %(default)s)")
     p.add_argument("--plants", type=positive_int, default=4, metavar="N",
                    help="number of plants, each a sequence folder (default: %(default)s)")
     p.add_argument("--seed", type=non_negative_int, default=0,

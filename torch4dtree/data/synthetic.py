@@ -1,4 +1,4 @@
-"""Synthetic growing plants (tomato, maize and bean 4D skeletons) with organ-level ground truth.
+"""Synthetic growing plants (tomato, maize, bean and almond 4D skeletons) with organ-level ground truth.
 
 **What a plant is.** Every frame of a plant is a *skeleton graph*, as a skeletonised laser scan
 gives it (Pheno4D, SPEC §6): nodes ``xyz (n, 3)`` (mm, z up, the root at the origin), parent
@@ -47,6 +47,16 @@ an organ present at one frame is present at all later frames.
   continuing it); in most plants, true side shoots from the axils of the primary and lower
   leaves bearing trifoliate leaves of their own: 4 layers of organs. 100-130 nodes on the first
   day, 1000-2000 on the last.
+* ``almond``: a young almond tree over two flushes of growth (slow at the first, middle and
+  last scans), wood only. A trunk (~160 mm at the first scan, ~560 at the last) leaning
+  2-12 degrees; 3-5 scaffolds (sylleptic shoots) from buds at different heights (70-400 mm) and
+  azimuths (2/5 phyllotaxis, 144 degrees), leaving at 30-60 degrees from vertical. Apical dominance
+  is weak: the upper scaffolds are the most vigorous and curve upwards, the top one outgrows
+  the trunk above it, and in half of the trees the leader itself arches 15-40 degrees away above
+  the top scaffold. On each scaffold, secondary shoots break from buds every ~45 mm once it has
+  grown past them, and spurs (short shoots, 6-25 mm: as long as skeletonisation spurs) appear on
+  the older wood of scaffolds and shoots: 4 layers. Nodes never move once laid down (wood).
+  100-135 nodes on the first day, 1200-2200 on the last; the tree spans 140-175 mm, then 500-650.
 
 In every frame of these plants (as in every frame of the Pheno4D skeletons, measured against
 the hand-corrected trees) the longest root-to-leaf path leaves the stem for a leaf or a shoot,
@@ -65,9 +75,12 @@ path of base-100 digits, one per step from the stem (see :func:`label_parts`):
 * ``0``: the main stem;
 * ``k`` (1..49): the k-th leaf from the bottom of the stem. Tomato: 1 and 2 are the cotyledons
   (one node, opposite), 3, 4, ... the true leaves. Maize: 1, 2, ... alternating on opposite
-  sides. Bean: 1 and 2 the opposite primary leaves, 3, 4, ... the trifoliate leaves;
-* ``50 + k`` (51..98): the side shoot from the axil of leaf ``k`` (same node as that leaf);
+  sides. Bean: 1 and 2 the opposite primary leaves, 3, 4, ... the trifoliate leaves. Almond: none;
+* ``50 + k`` (51..98): the side shoot from the axil of leaf ``k`` (same node as that leaf). Almond:
+  the ``k``-th scaffold from the bottom of the trunk (its leaf is gone);
 * ``P * 100 + i`` with ``P`` a shoot label and ``i`` (1..49): the i-th leaf of that shoot;
+* ``P * 100 + 50 + j`` with ``P`` a shoot label: almond, the ``j``-th lateral (secondary shoot
+  or spur, a short shoot) from the base of shoot ``P``;
 * ``L * 100 + j`` with ``L`` a leaf label and ``j`` (1..49): leaflet ``j`` of that leaf:
   ``j = 2 p - 1`` / ``2 p`` for the left / right leaflet of pair ``p`` from the leaf's base
   (the terminal leaflet is the continuation of the rachis, part of the leaf itself);
@@ -101,7 +114,7 @@ from ..trees.growth import consistent_frames
 from ..trees.skeleton import skeleton_to_trees
 from ..trees.structures import DEFAULT_T, Trees, TreeSequence
 
-KINDS = ("tomato", "maize", "bean")
+KINDS = ("tomato", "maize", "bean", "almond")  # a new kind goes at the end: indices seed the rng streams
 STEM_LABEL = 0
 SPUR_LABEL = 99
 SHOOT_OFFSET = 50  # a digit pair 50 + k names the side shoot from the axil of leaf k
@@ -214,6 +227,12 @@ def _bean_develop(b: float) -> float:
     return 38.0 + 200.0 * (b + 0.3 * b * b) / 1.3
 
 
+def _almond_develop(b: float) -> float:
+    # trunk ~160 mm at the first scan, ~560 mm at the last, over two flushes: growth slows to 0.4x its mean
+    # at b = 0, 1/2 and 1 (towards the dormant seasons) and is fastest (1.6x) mid-season
+    return 160.0 + 400.0 * (b - 0.6 * math.sin(4 * math.pi * b) / (4 * math.pi))
+
+
 _MODELS = {
     "tomato": _KindModel("tomato", _tomato_develop, node_drift=0.3, tau=1.5, droop_pow=1.6, node_spacing=1.35,
                          spur_rate=0.5),
@@ -221,6 +240,9 @@ _MODELS = {
                         spur_rate=0.12),
     "bean": _KindModel("bean", _bean_develop, node_drift=0.25, tau=2.0, droop_pow=1.6, node_spacing=1.4,
                        spur_rate=0.3),
+    # wood: internodes stop stretching once lignified (little drift), bends are stiff (low droop power)
+    "almond": _KindModel("almond", _almond_develop, node_drift=0.03, tau=4.0, droop_pow=1.3, node_spacing=1.4,
+                         spur_rate=0.3),
 }
 
 
@@ -265,6 +287,11 @@ class _PlantModel:
     stem_lean: np.ndarray  # (2,) horizontal lean of the stem direction
     stem_wobble: np.ndarray  # (2, 3, 3) per horizontal axis: (amplitude, wavelength mm, phase) x 3
     organs: list[_Organ]
+    # almond: the leader bends away above arc length `bend_from` (nominal mm), its lateral slopes
+    # ramping to `leader_bend (2,)` over `bend_ramp` mm; None: no bend (the herbaceous kinds)
+    bend_from: float | None = None
+    leader_bend: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    bend_ramp: float = 1.0
 
 
 def _horizontal(rng: np.random.Generator, magnitude: float) -> np.ndarray:
@@ -464,7 +491,82 @@ def _bean_structure(rng: np.random.Generator) -> _PlantModel:
     return _PlantModel(_MODELS["bean"], size, lean, wob, organs)
 
 
-_STRUCTURES = {"tomato": _tomato_structure, "maize": _maize_structure, "bean": _bean_structure}
+def _almond_structure(rng: np.random.Generator) -> _PlantModel:
+    # A young almond tree over two flushes, wood only. Apical dominance is weak: scaffolds near the top are the
+    # most vigorous and outgrow the leader above them, which in about half of the trees arches away.
+    size = rng.uniform(0.88, 1.12)
+    lean = _horizontal(rng, math.tan(rng.uniform(2.0, 12.0) * _DEG))  # trunks lean (wind, no stake)
+    wob = np.stack([_stem_wobble(rng, 0.05) for _ in range(2)])
+    organs = [_Organ(label=STEM_LABEL, parent=-1, role="stem")]
+    phi0 = rng.uniform(0, 2 * math.pi)
+    n_scaffolds = int(rng.integers(3, 6))
+    lo, hi = 70.0, 400.0  # trunk heights (nominal mm) of the scaffolds' buds, one per slot at random within it
+    nodes = lo + (hi - lo) * (np.arange(n_scaffolds) + rng.uniform(0.15, 0.85, n_scaffolds)) / n_scaffolds
+    end_clock = _almond_develop(1.0)
+    for k, F in enumerate(nodes.tolist(), 1):
+        rel = (F - lo) / (hi - lo)  # 0 at the bottom, 1 at the top: acrotony, the upper ones grow most
+        theta = rng.uniform(30.0, 60.0) * _DEG
+        scaffold = len(organs)
+        onset = F + 30.0 + rng.uniform(-5, 5)
+        organs.append(_Organ(
+            label=SHOOT_OFFSET + k, parent=0, role="shoot", onset=onset, node=F, depth=30.0,
+            max_len=(230.0 + 170.0 * rel) * rng.normal(1, 0.12), width=160.0 * rng.normal(1, 0.1),
+            theta_young=theta - 12 * _DEG, theta_mature=theta,
+            phi=phi0 + (k - 1) * 144.0 * _DEG + rng.normal(0, 20 * _DEG),  # 2/5 phyllotaxis
+            droop=(rng.uniform(-30, -10) if rel > 0.5 else rng.uniform(-10, 15)) * _DEG, droop_max=35 * _DEG,
+            wobble_theta=_wobble(rng, 0.08), wobble_phi=_wobble(rng, 0.10),
+        ))
+        sc = organs[scaffold]
+        sc_end = sc.max_len * -math.expm1(-(end_clock - onset) / sc.width)  # its clock at the last scan
+        # laterals on the scaffold: secondary shoots from buds every ~45 mm that break once the scaffold has
+        # grown 40 mm beyond them, and spurs (short shoots) on the older wood; numbered from the scaffold's base
+        laterals: list[tuple[float, str]] = []
+        F2 = 30.0 + rng.uniform(-10, 10)
+        while F2 + 40.0 < sc_end:
+            if rng.uniform() < 0.5:
+                laterals.append((F2, "shoot"))
+            F2 += 45.0 + rng.uniform(-10, 10)
+        for _ in range(int(rng.poisson(3.0))):
+            laterals.append((rng.uniform(15.0, max(0.7 * sc_end, 20.0)), "spur"))
+        laterals.sort()
+        side = 1.0 if rng.uniform() < 0.5 else -1.0
+        for j, (F2, what) in enumerate(laterals[:48], 1):
+            if what == "spur":
+                organs.append(_spur(rng, sc.label * 100 + SHOOT_OFFSET + j, scaffold, F2, delay=150.0))
+                continue
+            side = -side
+            shoot = len(organs)
+            organs.append(_Organ(
+                label=sc.label * 100 + SHOOT_OFFSET + j, parent=scaffold, role="shoot", onset=F2 + 40.0,
+                node=F2, depth=35.0, max_len=rng.uniform(60.0, 140.0), width=90.0 * rng.normal(1, 0.1),
+                theta_young=rng.uniform(30, 45) * _DEG, theta_mature=rng.uniform(45, 70) * _DEG,
+                phi=sc.phi + side * rng.uniform(40, 80) * _DEG, droop=rng.uniform(-15, 15) * _DEG,
+                droop_max=25 * _DEG, wobble_theta=_wobble(rng, 0.08), wobble_phi=_wobble(rng, 0.10),
+            ))
+            sec = organs[shoot]
+            spurs = np.sort(rng.uniform(10.0, max(0.6 * sec.max_len, 15.0), int(rng.integers(0, 3))))
+            for m, F3 in enumerate(spurs.tolist(), 1):
+                organs.append(_spur(rng, sec.label * 100 + SHOOT_OFFSET + m, shoot, F3, delay=60.0))
+    if rng.uniform() < 0.5:  # a weak leader arching away above the top scaffold
+        bend_from = float(nodes[-1]) + rng.uniform(0.0, 40.0)
+        return _PlantModel(_MODELS["almond"], size, lean, wob, organs, bend_from=bend_from,
+                           leader_bend=_horizontal(rng, math.tan(rng.uniform(15.0, 40.0) * _DEG)),
+                           bend_ramp=rng.uniform(60.0, 120.0))
+    return _PlantModel(_MODELS["almond"], size, lean, wob, organs)
+
+
+def _spur(rng: np.random.Generator, label: int, parent: int, node: float, delay: float) -> _Organ:
+    """A spur (a short shoot on older wood) at ``node``: it breaks once its axis has grown ~``delay`` mm past it."""
+    return _Organ(
+        label=label, parent=parent, role="shoot", onset=node + delay + rng.uniform(-20, 20), node=node, depth=40.0,
+        max_len=rng.uniform(6.0, 25.0), width=20.0, theta_young=rng.uniform(50, 100) * _DEG,
+        theta_mature=rng.uniform(50, 100) * _DEG, phi=rng.uniform(0, 2 * math.pi), droop=0.0,
+        wobble_theta=_wobble(rng, 0.03), wobble_phi=_wobble(rng, 0.03),
+    )
+
+
+_STRUCTURES = {"tomato": _tomato_structure, "maize": _maize_structure, "bean": _bean_structure,
+               "almond": _almond_structure}
 
 
 # ------------------------------------------------------------------------- growth in time
@@ -557,6 +659,11 @@ def _stem_points(plant: _PlantModel, L: float, jitter: np.ndarray, step: float =
         + noise[ax]
         for ax in range(2)
     ]
+    if plant.bend_from is not None:  # a weak leader arching over (fixed in arc length: the stem still only extends)
+        start = plant.size * plant.bend_from
+        ramp = np.clip((a - start) / (plant.size * plant.bend_ramp), 0.0, 1.0)
+        ramp = ramp * ramp * (3 - 2 * ramp)
+        lateral = [lateral[ax] + plant.leader_bend[ax] * ramp for ax in range(2)]
     d = np.stack([lateral[0], lateral[1], np.ones(n)], -1)
     return _polyline(np.zeros(3), d / np.linalg.norm(d, axis=-1, keepdims=True), L)
 
@@ -724,7 +831,7 @@ class SyntheticPlant:
         sequence: the 4D tree derived from :attr:`skeletons` by
             :func:`~torch4dtree.trees.skeleton.skeleton_to_trees` (with the plant's ``hierarchy_kwargs``);
             ``sequence.frames.label`` is each branch's majority organ (module doc).
-        kind: ``"tomato"``, ``"maize"`` or ``"bean"``.
+        kind: ``"tomato"``, ``"maize"``, ``"bean"`` or ``"almond"``.
         seed: the seed that regenerates this plant alone (``synthetic_plant(kind, seed, ...)``).
         growth_grid: ``(G,)`` normalised calendar times ``linspace(0, 1, G)``.
         growth_warp: ``(G,)`` the biological clock ``h`` on ``growth_grid`` (monotone, ``h(0)=0``,
@@ -824,8 +931,9 @@ def synthetic_plant(
 
     Args:
         kind: ``"tomato"`` (stem, cotyledons, compound leaves with leaflets and lobes, basal side
-            shoots), ``"maize"`` (stem and whorl, two-ranked arching leaves) or ``"bean"`` (primary
-            leaves, trifoliate leaves, side shoots with leaves of their own); see the module doc.
+            shoots), ``"maize"`` (stem and whorl, two-ranked arching leaves), ``"bean"`` (primary
+            leaves, trifoliate leaves, side shoots with leaves of their own) or ``"almond"`` (a young
+            tree's wood: trunk, scaffolds, secondary shoots, spurs); see the module doc.
         seed: any non-negative int; the same seed gives the same plant.
         n_frames: number of frames when ``times`` is not given.
         times: ``(n_frames,)`` strictly increasing acquisition times (any unit); default:
@@ -838,7 +946,7 @@ def synthetic_plant(
         grid_size: points of the growth-warp grid.
         dtype: dtype of the derived trees' points.
         name: the sequence name.
-        node_spacing: mean distance (mm) between skeleton nodes; default the kind's (1.15-1.35).
+        node_spacing: mean distance (mm) between skeleton nodes; default the kind's (1.15-1.4).
         jitter: standard deviation (mm) of the per-node position noise; 0 for none.
         spurs: multiplier of the kind's rate of skeletonisation spurs; 0 for none.
         hierarchy_kwargs: keyword arguments of :func:`~torch4dtree.trees.skeleton.skeleton_to_trees` (the

@@ -81,7 +81,7 @@ class EvalData:
     @property
     def kinds(self) -> list[str]:
         """The kinds present, in a fixed order (tomato before maize, as the paper's tables)."""
-        order = {"tomato": 0, "maize": 1, "bean": 2}
+        order = {"tomato": 0, "maize": 1, "bean": 2, "almond": 3}
         return sorted({p.kind for p in self.plants}, key=lambda k: (order.get(k, 9), k))
 
     def by_kind(self, kind: str) -> list[Plant4D]:
