@@ -20,6 +20,7 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
+from ..curves.refinement import refine_on_finer
 from ..curves.register import _pick_backend, _register_numba, _settings, dp_warp
 from ..curves.srvf import interpolate_curve, inverse_srvf, srvf, srvf_sq_distance, uniform_grid
 
@@ -56,7 +57,8 @@ class TemporalRegistration(NamedTuple):
     q_registered: Tensor
 
 
-def _check_trajectories(a: Tensor, b: Tensor) -> None:
+def _check_trajectories(a: Tensor, b: Tensor) -> int:
+    """Checks a pair of trajectories; returns how many times finer ``b`` is sampled than ``a`` (module doc)."""
     for name, x in (("alpha_ref", a), ("alpha_mov", b)):
         if not isinstance(x, Tensor) or not x.is_floating_point():
             raise TypeError(f"{name} must be a floating point tensor")
@@ -64,11 +66,13 @@ def _check_trajectories(a: Tensor, b: Tensor) -> None:
             raise ValueError(f"{name} must be (..., n_t >= 2, k), got {tuple(x.shape)}")
         if not bool(torch.isfinite(x).all()):
             raise ValueError(f"{name} contains NaN or inf")
-    if a.shape != b.shape:
-        raise ValueError(f"trajectories must have the same shape (resample them on one grid first), "
-                         f"got {tuple(a.shape)} and {tuple(b.shape)}")
+    n_t, m = a.shape[-2], b.shape[-2]
+    if a.shape[:-2] != b.shape[:-2] or a.shape[-1] != b.shape[-1] or (m - 1) % (n_t - 1):
+        raise ValueError(f"trajectories must have the same shape, or alpha_mov (m - 1) a multiple of (n_t - 1) "
+                         f"samples (resample them on one grid first), got {tuple(a.shape)} and {tuple(b.shape)}")
     if a.device != b.device:
         raise ValueError(f"trajectories are on different devices: {a.device} vs {b.device}")
+    return (m - 1) // (n_t - 1)
 
 
 def _norm(sq: Tensor) -> Tensor:
@@ -83,7 +87,13 @@ def register_trajectories(alpha_ref: Tensor, alpha_mov: Tensor, neighbourhood: i
 
     Args:
         alpha_ref: ``(..., n_t, k)`` reference trajectories on ``linspace(0, 1, n_t)``.
-        alpha_mov: ``(..., n_t, k)`` moving trajectories (same shape).
+        alpha_mov: ``(..., n_t, k)`` moving trajectories (same shape), or sampled ``F`` times finer, ``(..., F (n_t -
+            1) + 1, k)`` (:func:`~torch4dtree.temporal.trajectory.fine_size`; every ``F``-th sample is on the
+            ``n_t`` grid). The DP runs on the ``n_t`` grid; the refinement then warps the fine polyline
+            (:func:`~torch4dtree.curves.refinement.refine_on_finer`), and ``registered = alpha_mov(xi(t))`` is read
+            on it. A trajectory through frames that fall between grid times has its corners cut by its ``n_t``
+            samples, differently from a time-warped copy of it: no warp of the samples brings the copy back
+            (module constants), a warp of the fine polyline nearly does.
         neighbourhood, refine, band, coarse, backend: DP settings of :func:`torch4dtree.curves.dp_warp`. The
             defaults (whole lattice, slopes up to 4, 16 refinement steps) were the most accurate per unit
             of time at ``n_t <= 64`` (module constants); the refinement moves the warp off the lattice, so
@@ -94,10 +104,11 @@ def register_trajectories(alpha_ref: Tensor, alpha_mov: Tensor, neighbourhood: i
         :class:`TemporalRegistration`; ``distance <= distance_before`` always (the identity warp is kept
         when nothing better is found).
     """
-    _check_trajectories(alpha_ref, alpha_mov)
+    factor = _check_trajectories(alpha_ref, alpha_mov)
     lead, (n_t, k) = alpha_ref.shape[:-2], alpha_ref.shape[-2:]
     ref = alpha_ref.reshape(-1, n_t, k)
-    mov = alpha_mov.reshape(-1, n_t, k).to(ref.dtype)
+    fine = alpha_mov.reshape(-1, alpha_mov.shape[-2], k).to(ref.dtype)
+    mov = fine[:, ::factor]
     q_ref, q_mov = srvf(ref), srvf(mov)
     e_before = srvf_sq_distance(q_ref, q_mov)
     if ref.shape[0] == 0:
@@ -110,7 +121,9 @@ def register_trajectories(alpha_ref: Tensor, alpha_mov: Tensor, neighbourhood: i
     else:
         warp = dp_warp(q_ref.detach(), q_mov.detach(), neighbourhood=neighbourhood, band=band, coarse=coarse,
                        band_neighbourhood=BAND_NEIGHBOURHOOD, refine=refine, backend=backend).gamma.to(ref.dtype)
-    registered = interpolate_curve(mov, warp)
+    if factor > 1 and refine > 0 and n_t > 2:
+        warp = refine_on_finer(q_ref.detach(), fine.detach(), warp, refine, _pick_backend(backend, ref))
+    registered = interpolate_curve(fine, warp)
     q_reg = srvf(registered)
     e_after = srvf_sq_distance(q_ref, q_reg)
     start_sq = (ref[:, 0] - mov[:, 0]).square().sum(-1)

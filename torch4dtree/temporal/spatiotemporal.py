@@ -37,7 +37,7 @@ from ..trees.aligned import AlignedTrees
 from ..trees.registration import effective_lambdas, index_order_matches, register_trees
 from ..trees.structures import Trees, TreeSequence
 from .registration import TemporalRegistration, geodesic4d, register_trajectories
-from .trajectory import resample_trajectory, trajectory_srvf
+from .trajectory import OVERSAMPLE, fine_size, resample_trajectory, trajectory_srvf
 from .within import AlignedSequence, _inverse_at, register_sequence
 
 __all__ = ["SpatiotemporalRegistration", "combine_many", "combine_sequences", "grow_union", "open_slots",
@@ -204,6 +204,8 @@ class SpatiotemporalRegistration(NamedTuple):
     * ``warp (n_t,)``: the time warp ``xi`` of ``B`` (``B`` at ``xi(t)`` matches ``A`` at ``t``), on
       ``times (n_t,) = linspace(0, 1, n_t)``.
     * ``alpha_ref``, ``alpha_mov``, ``alpha_mov_registered``: ``(n_t, k)`` trajectories in the tree space.
+    * ``alpha_mov_fine``: ``B``'s trajectory as the temporal registration saw it, ``(fine_size(n_t), k)`` (``alpha_mov``
+      is every :data:`~torch4dtree.temporal.trajectory.OVERSAMPLE`-th sample of it); ``None``: ``alpha_mov``.
     * ``pca``: the fitted :class:`TreePCA` (decodes coefficients to trees in the common layout).
     * ``layout``: every frame of both 4D trees in the common layout (:class:`AlignedTrees`, ``A``'s frames first).
     * ``sequences``: the two within-sequence registrations; ``matches``: ``[(B slot, A slot)]``.
@@ -229,6 +231,7 @@ class SpatiotemporalRegistration(NamedTuple):
     time_span_ref: tuple[float, float]
     seconds: dict[str, float]
     kept_index_order: bool = False
+    alpha_mov_fine: Tensor | None = None
 
     def geodesic(self, steps: int = 5) -> list[TreeSequence]:
         """The 4D geodesic from ``A`` to ``B`` (after spatiotemporal registration) as ``steps`` 4D trees.
@@ -253,13 +256,14 @@ class SpatiotemporalRegistration(NamedTuple):
 
 
 def _trajectories(layout: AlignedTrees, n_ref: int, ref_times: Tensor, mov_times: Tensor, n_t: int,
-                  n_components: int | None) -> tuple[TreePCA, Tensor, Tensor]:
+                  n_components: int | None, oversample: int = 1) -> tuple[TreePCA, Tensor, Tensor]:
+    """PCA of ``layout`` and the trajectories ``alpha_ref (n_t, k)``, ``alpha_mov (fine_size(n_t, oversample), k)``."""
     n = layout.num_trees
     k = n - 1 if n_components is None else n_components
     pca = TreePCA(n_components=min(k, n - 1)).fit(layout)
     coeffs = pca.transform(layout)
     alpha_ref = resample_trajectory(coeffs[:n_ref], ref_times.to(coeffs.dtype), n_t)
-    alpha_mov = resample_trajectory(coeffs[n_ref:], mov_times.to(coeffs.dtype), n_t)
+    alpha_mov = resample_trajectory(coeffs[n_ref:], mov_times.to(coeffs.dtype), fine_size(n_t, oversample))
     return pca, alpha_ref, alpha_mov
 
 
@@ -318,8 +322,9 @@ def register4d(reference: TreeSequence | AlignedSequence, moving: TreeSequence |
     seconds["cross_sequence"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     n_ref = len(A)
-    pca0, a0, b0 = _trajectories(before, n_ref, A.times, B.times, n_t, n_components)
-    pca, alpha_a, alpha_b = _trajectories(after, n_ref, A.times, B.times, n_t, n_components)
+    # B's trajectory OVERSAMPLE times finer, so the temporal registration warps its frames, not its n_t samples
+    pca0, a0, b0 = _trajectories(before, n_ref, A.times, B.times, n_t, n_components, OVERSAMPLE)
+    pca, alpha_a, alpha_b = _trajectories(after, n_ref, A.times, B.times, n_t, n_components, OVERSAMPLE)
     seconds["tree_space"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     d_before = float(register_trajectories(a0, b0).distance_before)
@@ -334,6 +339,6 @@ def register4d(reference: TreeSequence | AlignedSequence, moving: TreeSequence |
     times = torch.linspace(0, 1, n_t, dtype=alpha_a.dtype)
     span = (float(A.times[0]), float(A.times[-1]))
     return SpatiotemporalRegistration(
-        d_before, d_spatial, float(temporal.distance), temporal.warp, times, alpha_a, alpha_b,
-        temporal.registered, pca, after, (A, B), matches, temporal, span, seconds, kept_index_order)
+        d_before, d_spatial, float(temporal.distance), temporal.warp, times, alpha_a, alpha_b[::OVERSAMPLE],
+        temporal.registered, pca, after, (A, B), matches, temporal, span, seconds, kept_index_order, alpha_b)
 
