@@ -182,7 +182,8 @@ def _unsynchronised(r: SpatiotemporalRegistration, warp: PlantWarp, n_t: int) ->
     mov = r.sequences[1]
     coeffs = r.pca.transform(r.layout)[len(r.sequences[0]):]  # the layout holds the reference's frames first
     u = mov.normalized_times().double()[warp.keep]
-    alpha = resample_trajectory(coeffs[warp.keep], warp.at(u), fine_size(n_t))  # as register4d's moving one
+    s = warp.at(u)
+    alpha = resample_trajectory(coeffs[warp.keep], s, fine_size(n_t, s))  # as register4d's moving one
     t = register_trajectories(r.alpha_ref, alpha)
     return {"before": float(t.distance_before), "after": float(t.distance), "frames": len(warp.keep),
             "of": len(mov), "altered": warp.altered}
@@ -199,7 +200,7 @@ def warped_copies(aligned: AlignedSequence, warp: PlantWarp, n_t: int) -> list[d
     for keep in (list(range(len(aligned))), warp.keep)[:1 + (len(warp.keep) < len(aligned))]:
         s = warp.at(u[keep])
         t0 = time.perf_counter()
-        t = register_trajectories(alpha, resample_trajectory(coeffs[keep], s, fine_size(n_t)))  # as register4d's
+        t = register_trajectories(alpha, resample_trajectory(coeffs[keep], s, fine_size(n_t, s)))  # as register4d's
         seconds = time.perf_counter() - t0
         truth = true_warp(u[keep], s, n_t)
         # the copy at its true times (no warp): what the missing days alone cost (0 with every frame)

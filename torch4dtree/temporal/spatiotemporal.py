@@ -37,7 +37,7 @@ from ..trees.aligned import AlignedTrees
 from ..trees.registration import effective_lambdas, index_order_matches, register_trees
 from ..trees.structures import Trees, TreeSequence
 from .registration import TemporalRegistration, geodesic4d, register_trajectories
-from .trajectory import OVERSAMPLE, fine_size, resample_trajectory, trajectory_srvf
+from .trajectory import fine_size, resample_trajectory, trajectory_srvf
 from .within import AlignedSequence, _inverse_at, register_sequence
 
 __all__ = ["SpatiotemporalRegistration", "combine_many", "combine_sequences", "grow_union", "open_slots",
@@ -204,8 +204,8 @@ class SpatiotemporalRegistration(NamedTuple):
     * ``warp (n_t,)``: the time warp ``xi`` of ``B`` (``B`` at ``xi(t)`` matches ``A`` at ``t``), on
       ``times (n_t,) = linspace(0, 1, n_t)``.
     * ``alpha_ref``, ``alpha_mov``, ``alpha_mov_registered``: ``(n_t, k)`` trajectories in the tree space.
-    * ``alpha_mov_fine``: ``B``'s trajectory as the temporal registration saw it, ``(fine_size(n_t), k)`` (``alpha_mov``
-      is every :data:`~torch4dtree.temporal.trajectory.OVERSAMPLE`-th sample of it); ``None``: ``alpha_mov``.
+    * ``alpha_mov_fine``: ``B``'s trajectory as the temporal registration saw it, ``(fine_size(n_t, B's times), k)``
+      (``alpha_mov`` is every ``F``-th sample of it); ``None``: ``alpha_mov``.
     * ``pca``: the fitted :class:`TreePCA` (decodes coefficients to trees in the common layout).
     * ``layout``: every frame of both 4D trees in the common layout (:class:`AlignedTrees`, ``A``'s frames first).
     * ``sequences``: the two within-sequence registrations; ``matches``: ``[(B slot, A slot)]``.
@@ -256,14 +256,15 @@ class SpatiotemporalRegistration(NamedTuple):
 
 
 def _trajectories(layout: AlignedTrees, n_ref: int, ref_times: Tensor, mov_times: Tensor, n_t: int,
-                  n_components: int | None, oversample: int = 1) -> tuple[TreePCA, Tensor, Tensor]:
-    """PCA of ``layout`` and the trajectories ``alpha_ref (n_t, k)``, ``alpha_mov (fine_size(n_t, oversample), k)``."""
+                  n_components: int | None, mov_samples: int | None = None) -> tuple[TreePCA, Tensor, Tensor]:
+    """PCA of ``layout`` and the trajectories ``alpha_ref (n_t, k)``, ``alpha_mov (mov_samples, k)`` (default
+    ``n_t``; :func:`~.trajectory.fine_size` for the temporal registration)."""
     n = layout.num_trees
     k = n - 1 if n_components is None else n_components
     pca = TreePCA(n_components=min(k, n - 1)).fit(layout)
     coeffs = pca.transform(layout)
     alpha_ref = resample_trajectory(coeffs[:n_ref], ref_times.to(coeffs.dtype), n_t)
-    alpha_mov = resample_trajectory(coeffs[n_ref:], mov_times.to(coeffs.dtype), fine_size(n_t, oversample))
+    alpha_mov = resample_trajectory(coeffs[n_ref:], mov_times.to(coeffs.dtype), mov_samples or n_t)
     return pca, alpha_ref, alpha_mov
 
 
@@ -322,9 +323,10 @@ def register4d(reference: TreeSequence | AlignedSequence, moving: TreeSequence |
     seconds["cross_sequence"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     n_ref = len(A)
-    # B's trajectory OVERSAMPLE times finer, so the temporal registration warps its frames, not its n_t samples
-    pca0, a0, b0 = _trajectories(before, n_ref, A.times, B.times, n_t, n_components, OVERSAMPLE)
-    pca, alpha_a, alpha_b = _trajectories(after, n_ref, A.times, B.times, n_t, n_components, OVERSAMPLE)
+    # B's trajectory finer than n_t, so the temporal registration warps its frames, not its n_t samples
+    fine = fine_size(n_t, B.times)
+    pca0, a0, b0 = _trajectories(before, n_ref, A.times, B.times, n_t, n_components, fine)
+    pca, alpha_a, alpha_b = _trajectories(after, n_ref, A.times, B.times, n_t, n_components, fine)
     seconds["tree_space"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     d_before = float(register_trajectories(a0, b0).distance_before)
@@ -338,7 +340,8 @@ def register4d(reference: TreeSequence | AlignedSequence, moving: TreeSequence |
     seconds["temporal"] = time.perf_counter() - t0
     times = torch.linspace(0, 1, n_t, dtype=alpha_a.dtype)
     span = (float(A.times[0]), float(A.times[-1]))
+    alpha_b_grid = alpha_b[::(fine - 1) // (n_t - 1)]
     return SpatiotemporalRegistration(
-        d_before, d_spatial, float(temporal.distance), temporal.warp, times, alpha_a, alpha_b[::OVERSAMPLE],
+        d_before, d_spatial, float(temporal.distance), temporal.warp, times, alpha_a, alpha_b_grid,
         temporal.registered, pca, after, (A, B), matches, temporal, span, seconds, kept_index_order, alpha_b)
 
