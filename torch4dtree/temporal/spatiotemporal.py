@@ -15,7 +15,8 @@ The pipeline, for 4D trees ``A`` (reference) and ``B`` (moving):
    distances are exactly tree distances); each 4D tree becomes a trajectory in ``R^k``, resampled at ``n_t``
    equally spaced normalised times between its actual frame times.
 4. **Temporal registration** (:func:`register_trajectories`): the optimal time warp of ``B``'s trajectory onto
-   ``A``'s and the rate-invariant distance.
+   ``A``'s and the rate-invariant distance. ``B``'s trajectory is passed :func:`~.trajectory.fine_size` samples, so
+   the warp moves ``B``'s frames (the corners of its trajectory), not only its ``n_t`` samples.
 
 The three distances reported are the same 4D distance, ``sqrt(||alpha_A(0) - alpha_B(0)||^2 + ||q_A - q_B||^2)``
 with ``q`` the SRVF of the trajectory: before any registration (``B``'s slots matched to ``A``'s in index order,
