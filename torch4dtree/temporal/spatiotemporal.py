@@ -18,7 +18,8 @@ The pipeline, for 4D trees ``A`` (reference) and ``B`` (moving):
    distances are exactly tree distances); each 4D tree becomes a trajectory in ``R^k``, resampled at ``n_t``
    equally spaced normalised times between its actual frame times.
 4. **Temporal registration** (:func:`register_trajectories`): the optimal time warp of ``B``'s trajectory onto
-   ``A``'s and the rate-invariant distance.
+   ``A``'s and the rate-invariant distance. ``B``'s trajectory is passed :func:`~.trajectory.fine_size` samples, so
+   the warp moves ``B``'s frames (the corners of its trajectory), not only its ``n_t`` samples.
 
 The three distances reported are the same 4D distance, ``sqrt(||alpha_A(0) - alpha_B(0)||^2 + ||q_A - q_B||^2)``
 with ``q`` the SRVF of the trajectory: before any registration (``B``'s slots matched to ``A``'s in index order,
@@ -40,7 +41,7 @@ from ..trees.aligned import AlignedTrees
 from ..trees.registration import effective_lambdas, index_order_matches, register_trees
 from ..trees.structures import Trees, TreeSequence
 from .registration import TemporalRegistration, geodesic4d, register_trajectories
-from .trajectory import resample_trajectory, trajectory_srvf
+from .trajectory import fine_size, resample_trajectory, trajectory_srvf
 from .within import AlignedSequence, _inverse_at, register_sequence
 
 __all__ = ["SpatiotemporalRegistration", "combine_many", "combine_sequences", "grow_union", "open_slots",
@@ -207,6 +208,8 @@ class SpatiotemporalRegistration(NamedTuple):
     * ``warp (n_t,)``: the time warp ``xi`` of ``B`` (``B`` at ``xi(t)`` matches ``A`` at ``t``), on
       ``times (n_t,) = linspace(0, 1, n_t)``.
     * ``alpha_ref``, ``alpha_mov``, ``alpha_mov_registered``: ``(n_t, k)`` trajectories in the tree space.
+    * ``alpha_mov_fine``: ``B``'s trajectory as the temporal registration saw it, ``(fine_size(n_t, B's times), k)``
+      (``alpha_mov`` is every ``F``-th sample of it); ``None``: ``alpha_mov``.
     * ``pca``: the fitted :class:`TreePCA` (decodes coefficients to trees in the common layout).
     * ``layout``: every frame of both 4D trees in the common layout (:class:`AlignedTrees`, ``A``'s frames first).
     * ``sequences``: the two within-sequence registrations; ``matches``: ``[(B slot, A slot)]``.
@@ -234,6 +237,7 @@ class SpatiotemporalRegistration(NamedTuple):
     seconds: dict[str, float]
     kept_index_order: bool = False
     spatial_candidate: str = "registered"
+    alpha_mov_fine: Tensor | None = None
 
     def geodesic(self, steps: int = 5) -> list[TreeSequence]:
         """The 4D geodesic from ``A`` to ``B`` (after spatiotemporal registration) as ``steps`` 4D trees.
@@ -258,13 +262,15 @@ class SpatiotemporalRegistration(NamedTuple):
 
 
 def _trajectories(layout: AlignedTrees, n_ref: int, ref_times: Tensor, mov_times: Tensor, n_t: int,
-                  n_components: int | None) -> tuple[TreePCA, Tensor, Tensor]:
+                  n_components: int | None, mov_samples: int | None = None) -> tuple[TreePCA, Tensor, Tensor]:
+    """PCA of ``layout`` and the trajectories ``alpha_ref (n_t, k)``, ``alpha_mov (mov_samples, k)`` (default
+    ``n_t``; :func:`~.trajectory.fine_size` for the temporal registration)."""
     n = layout.num_trees
     k = n - 1 if n_components is None else n_components
     pca = TreePCA(n_components=min(k, n - 1)).fit(layout)
     coeffs = pca.transform(layout)
     alpha_ref = resample_trajectory(coeffs[:n_ref], ref_times.to(coeffs.dtype), n_t)
-    alpha_mov = resample_trajectory(coeffs[n_ref:], mov_times.to(coeffs.dtype), n_t)
+    alpha_mov = resample_trajectory(coeffs[n_ref:], mov_times.to(coeffs.dtype), mov_samples or n_t)
     return pca, alpha_ref, alpha_mov
 
 
@@ -328,7 +334,9 @@ def register4d(reference: TreeSequence | AlignedSequence, moving: TreeSequence |
     seconds["cross_sequence"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     n_ref = len(A)
-    spaces = [_trajectories(lay, n_ref, A.times, B.times, n_t, n_components) for lay in layouts]
+    # B's trajectory finer than n_t, so the temporal registration warps its frames, not its n_t samples
+    fine = fine_size(n_t, B.times)
+    spaces = [_trajectories(lay, n_ref, A.times, B.times, n_t, n_components, fine) for lay in layouts]
     seconds["tree_space"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     dists = [float(register_trajectories(a, b).distance_before) for _, a, b in spaces]
@@ -341,8 +349,9 @@ def register4d(reference: TreeSequence | AlignedSequence, moving: TreeSequence |
     seconds["temporal"] = time.perf_counter() - t0
     times = torch.linspace(0, 1, n_t, dtype=alpha_a.dtype)
     span = (float(A.times[0]), float(A.times[-1]))
+    alpha_b_grid = alpha_b[::(fine - 1) // (n_t - 1)]
     return SpatiotemporalRegistration(
-        d_before, d_spatial, float(temporal.distance), temporal.warp, times, alpha_a, alpha_b,
+        d_before, d_spatial, float(temporal.distance), temporal.warp, times, alpha_a, alpha_b_grid,
         temporal.registered, pca, after, (A, B), matches, temporal, span, seconds,
-        spatial_candidate == "index_order", spatial_candidate)
+        spatial_candidate == "index_order", spatial_candidate, alpha_b)
 
