@@ -130,7 +130,9 @@ class TreePCA(FittedModule):
         X = aligned.features().detach()
         mean = X.mean(0)
         Xc = X - mean
-        _, sing, Vh = torch.linalg.svd(Xc, full_matrices=False)
+        # LAPACK is ~3x faster on the tall matrix than on the wide one (n trees << F features); same factors
+        U, sing, _ = torch.linalg.svd(Xc.T, full_matrices=False)
+        Vh = U.T
         var = sing.square() / (n - 1)
         total = float(Xc.square().sum()) / (n - 1)
         if not total > 0:

@@ -274,6 +274,26 @@ def _trajectories(layout: AlignedTrees, n_ref: int, ref_times: Tensor, mov_times
     return pca, alpha_ref, alpha_mov
 
 
+def _candidate_distance(layout: AlignedTrees, n_ref: int, ref_times: Tensor, mov_times: Tensor, n_t: int,
+                        n_components: int | None, mov_samples: int) -> float:
+    """The 4D distance (identity time warp) of a spatial candidate's layout, as :func:`_trajectories` would give it.
+
+    With all components (the default) the coefficients are the centred features in an orthonormal basis of their
+    span, and the 4D distance only sees Euclidean geometry, so any such basis gives it: a QR factorisation
+    ``Xc^T = Q R`` gives the coefficients ``R^T`` to full precision, cheaper than the PCA's SVD (one tree PCA is
+    fitted, for the candidate kept, instead of three).
+    """
+    if n_components is not None:
+        _, a, b = _trajectories(layout, n_ref, ref_times, mov_times, n_t, n_components, mov_samples)
+        return float(register_trajectories(a, b).distance_before)
+    X = layout.features().detach()
+    Xc = X - X.mean(0)
+    coeffs = torch.linalg.qr(Xc.T)[1].T
+    a = resample_trajectory(coeffs[:n_ref], ref_times.to(coeffs.dtype), n_t)
+    b = resample_trajectory(coeffs[n_ref:], mov_times.to(coeffs.dtype), mov_samples)
+    return float(register_trajectories(a, b).distance_before)
+
+
 def register4d(reference: TreeSequence | AlignedSequence, moving: TreeSequence | AlignedSequence,
                lambdas: Sequence[float] = (1.0, 1.0, 1.0), rotation: str = "none", n_t: int = DEFAULT_NT,
                n_components: int | None = None, progress: bool = False,
@@ -336,16 +356,16 @@ def register4d(reference: TreeSequence | AlignedSequence, moving: TreeSequence |
     n_ref = len(A)
     # B's trajectory finer than n_t, so the temporal registration warps its frames, not its n_t samples
     fine = fine_size(n_t, B.times)
-    spaces = [_trajectories(lay, n_ref, A.times, B.times, n_t, n_components, fine) for lay in layouts]
-    seconds["tree_space"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    dists = [float(register_trajectories(a, b).distance_before) for _, a, b in spaces]
+    dists = [_candidate_distance(lay, n_ref, A.times, B.times, n_t, n_components, fine) for lay in layouts]
     d_before = dists[0]
     # ties go to the registration as found, then its correspondence, then index order
     best = min((1, 2, 0), key=lambda i: dists[i])
-    spatial_candidate, matches = candidates[best][0], candidates[best][1]
-    (pca, alpha_a, alpha_b), after, d_spatial = spaces[best], layouts[best], dists[best]
+    spatial_candidate, matches, after = candidates[best][0], candidates[best][1], layouts[best]
+    pca, alpha_a, alpha_b = _trajectories(after, n_ref, A.times, B.times, n_t, n_components, fine)
+    seconds["tree_space"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
     temporal = register_trajectories(alpha_a, alpha_b)
+    d_spatial = float(temporal.distance_before)
     seconds["temporal"] = time.perf_counter() - t0
     times = torch.linspace(0, 1, n_t, dtype=alpha_a.dtype)
     span = (float(A.times[0]), float(A.times[-1]))
