@@ -108,7 +108,9 @@ class _Tree:
     norm: np.ndarray  # (N,) recursive subtree squared norms
 
 
-def _prepare(tree: Trees, lambdas: Lambdas) -> _Tree:
+def _prepare(tree: Trees, lambdas: Lambdas, arclength: bool = False) -> _Tree:
+    """The solver's form of a single tree; ``arclength``: ``s`` as arc-length fractions of the parents (the
+    parameters themselves for uniformly resampled trees), for :func:`_child_positions`."""
     if tree.num_trees != 1:
         raise ValueError(f"expected a single tree, got a batch of {tree.num_trees}")
     # the discrete solve (DP warps, assignments) runs on the CPU; results go back to the input's device
@@ -122,6 +124,13 @@ def _prepare(tree: Trees, lambdas: Lambdas) -> _Tree:
     for ch in children:
         ch.sort(key=lambda c: s[c])
     lengths = srvf_sq_norm(q).numpy()
+    if arclength:  # |q|^2 is the speed: cumulative segment lengths give the arc length at each grid parameter
+        seg = q.square().sum(-1).numpy() / q.shape[1]
+        arc = np.concatenate([np.zeros((len(parent), 1)), np.cumsum(seg, axis=1)], axis=1)
+        grid = np.linspace(0.0, 1.0, arc.shape[1])
+        for i, p in enumerate(parent):
+            if p >= 0:
+                s[i] = np.interp(s[i], grid, arc[p]) / max(float(arc[p, -1]), 1e-12)
     return _Tree(tree.points, q, s, parent, children, tree.depth.tolist(), np.sqrt(lengths),
                  np.asarray(subtree_sq_norms(lengths.tolist(), parent, lambdas)))
 
@@ -187,7 +196,8 @@ def _child_positions(mov: _Tree, ref: _Tree, a: int, b: int, children: Sequence[
                      grid: np.ndarray, arclength: bool) -> np.ndarray:
     """Where moving branch ``a``'s ``children`` sit on reference branch ``b`` (its parameter), to be compared with
     the reference children's ``s``: ``gamma_ab^{-1}(s_c)`` (``"warped"``, SPEC §3), or with ``arclength`` their
-    arc length from the parent's base unwarped, in units of the reference parent's length (may exceed 1)."""
+    arc length from the parent's base whatever the warp, in units of the reference parent's length (may exceed 1;
+    both trees prepared with ``arclength``, so their ``s`` are arc-length fractions)."""
     if not len(children):
         return np.zeros(0)
     s_c = mov.s[list(children)]
@@ -597,16 +607,16 @@ def register_to_reference(trees: Trees, reference: Trees, lambdas: Sequence[floa
     lams = [effective_lambdas(lam, reference, t) if lp_relative else lam for t in singles]
     up_t = torch.as_tensor((0.0, 0.0, 1.0) if up is None else up, dtype=torch.float64)
     dp_opts = {"neighbourhood": neighbourhood, "band": band, "coarse": coarse, "refine": refine}
-    ref = _prepare(reference, lam)
-    movs = [_prepare(t, lt) for t, lt in zip(singles, lams)]
+    ref = _prepare(reference, lam, arc)
+    movs = [_prepare(t, lt, arc) for t, lt in zip(singles, lams)]
     with torch.no_grad():
         starts = [_initial_rotations(m, ref, rotation, up_t, n_starts, dp_opts) for m in movs]
         best: list[_Config | None] = [None] * len(movs)
         jobs = [(m, 0, O) for m, Os in enumerate(starts) for O in Os]
         if rotation != "none" and max(len(Os) for Os in starts) > KEEP_STARTS:
             if reference.T > RANK_T:  # ranking only compares starts: coarser curves do (DP cost ~ T^2)
-                coarse = [_prepare(t, lt) for t, lt in zip(trees.resample(RANK_T).split(), lams)]
-                jobs = _rank_starts(coarse, _prepare(reference.resample(RANK_T), lam), jobs, lams, dp_opts, prune,
+                coarse = [_prepare(t, lt, arc) for t, lt in zip(trees.resample(RANK_T).split(), lams)]
+                jobs = _rank_starts(coarse, _prepare(reference.resample(RANK_T), lam, arc), jobs, lams, dp_opts, prune,
                                     rotation, up_t, arc)
             else:
                 jobs = _rank_starts(movs, ref, jobs, lams, dp_opts, prune, rotation, up_t, arc)
