@@ -53,6 +53,7 @@ from .aligned import AlignedTrees, Lambdas, slot_weights, subtree_sq_norms
 from .structures import Trees
 
 __all__ = [
+    "POSITIONS",
     "TreeRegistration",
     "effective_lambdas",
     "index_order_matches",
@@ -107,7 +108,9 @@ class _Tree:
     norm: np.ndarray  # (N,) recursive subtree squared norms
 
 
-def _prepare(tree: Trees, lambdas: Lambdas) -> _Tree:
+def _prepare(tree: Trees, lambdas: Lambdas, arclength: bool = False) -> _Tree:
+    """The solver's form of a single tree; ``arclength``: ``s`` as arc-length fractions of the parents (the
+    parameters themselves for uniformly resampled trees), for :func:`_child_positions`."""
     if tree.num_trees != 1:
         raise ValueError(f"expected a single tree, got a batch of {tree.num_trees}")
     # the discrete solve (DP warps, assignments) runs on the CPU; results go back to the input's device
@@ -121,6 +124,13 @@ def _prepare(tree: Trees, lambdas: Lambdas) -> _Tree:
     for ch in children:
         ch.sort(key=lambda c: s[c])
     lengths = srvf_sq_norm(q).numpy()
+    if arclength:  # |q|^2 is the speed: cumulative segment lengths give the arc length at each grid parameter
+        seg = q.square().sum(-1).numpy() / q.shape[1]
+        arc = np.concatenate([np.zeros((len(parent), 1)), np.cumsum(seg, axis=1)], axis=1)
+        grid = np.linspace(0.0, 1.0, arc.shape[1])
+        for i, p in enumerate(parent):
+            if p >= 0:
+                s[i] = np.interp(s[i], grid, arc[p]) / max(float(arc[p, -1]), 1e-12)
     return _Tree(tree.points, q, s, parent, children, tree.depth.tolist(), np.sqrt(lengths),
                  np.asarray(subtree_sq_norms(lengths.tolist(), parent, lambdas)))
 
@@ -177,6 +187,23 @@ LANDMARK_STEPS = (0.25, 0.5, 0.75, 1.0)
 LANDMARK_ROUNDS = 3
 # ... tried only where the children's parameter terms are at least this share of the node's cost
 LANDMARK_MIN_SHARE = 0.01
+
+
+POSITIONS = ("warped", "arclength")
+
+
+def _child_positions(mov: _Tree, ref: _Tree, a: int, b: int, children: Sequence[int], gamma_ab: np.ndarray,
+                     grid: np.ndarray, arclength: bool) -> np.ndarray:
+    """Where moving branch ``a``'s ``children`` sit on reference branch ``b`` (its parameter), to be compared with
+    the reference children's ``s``: ``gamma_ab^{-1}(s_c)`` (``"warped"``, SPEC §3), or with ``arclength`` their
+    arc length from the parent's base whatever the warp, in units of the reference parent's length (may exceed 1;
+    both trees prepared with ``arclength``, so their ``s`` are arc-length fractions)."""
+    if not len(children):
+        return np.zeros(0)
+    s_c = mov.s[list(children)]
+    if arclength:
+        return s_c * mov.sqrt_len[a] ** 2 / max(float(ref.sqrt_len[b]) ** 2, 1e-12)
+    return np.interp(s_c, gamma_ab, grid)
 
 
 def _landmark_warp(s_ref: np.ndarray, s_now: np.ndarray, grid: np.ndarray) -> np.ndarray | None:
@@ -237,15 +264,17 @@ def _refit_to_children(ref_q: Tensor, mov_q: Tensor, gamma: np.ndarray, s_mov: n
 
 def _solve(movs: Sequence[_Tree], refs: Sequence[_Tree], jobs: Sequence[tuple[int, int, Tensor]],
            lambdas: Sequence[Lambdas], dp_opts: dict, prune: bool, max_depth: int | None = None,
-           landmarks: bool = True) -> list[_Config]:
+           landmarks: bool = True, arclength: bool = False) -> list[_Config]:
     """Warps + assignments for fixed rotations. ``jobs[k] = (moving index, reference index, O (d, d))``;
     ``lambdas[m]`` are the weights of moving tree ``m`` (with ``lp_relative`` each pair has its own ``lp``; the
     DP warps do not depend on the weights, so pairs of different weights still share the batched DP calls).
 
     ``max_depth`` stops exploring pairs below that layer (their subtrees then count as unmatched): a cheap,
     approximate solve used to rank starting rotations. ``landmarks`` refits each parent's warp to its
-    matched children (:func:`_refit_to_children`).
+    matched children (:func:`_refit_to_children`; not with ``arclength``, where a warp does not move children).
+    ``arclength``: children's positions compared by arc length (:func:`_child_positions`).
     """
+    landmarks = landmarks and not arclength
     T = movs[0].q.shape[1] + 1
     grid = np.linspace(0.0, 1.0, T)
     qrot = [_rotate(movs[m].q, O) for m, _, O in jobs]
@@ -267,7 +296,7 @@ def _solve(movs: Sequence[_Tree], refs: Sequence[_Tree], jobs: Sequence[tuple[in
             if depth > 0 and prune and lp * (sa - ref.s[b]) ** 2 + ls * lm * E[p] >= ls * (mov.norm[a] + ref.norm[b]):
                 continue  # never better than leaving both unmatched: do not explore
             ca, cb = mov.children[a], ref.children[b]
-            sc = np.interp(mov.s[ca], gam[p], grid) if ca else np.zeros(0)
+            sc = _child_positions(mov, ref, a, b, ca, gam[p], grid, arclength)
             info[(k, a, b)] = (float(E[p]), gam[p], sc)
             if max_depth is not None and depth >= max_depth:
                 continue
@@ -374,10 +403,11 @@ def _initial_rotations(mov: _Tree, ref: _Tree, rotation: str, up: Tensor, n_star
 
 
 def _rank_starts(movs: Sequence[_Tree], ref: _Tree, jobs: list[tuple[int, int, Tensor]], lambdas: Sequence[Lambdas],
-                 dp_opts: dict, prune: bool, rotation: str, up: Tensor) -> list[tuple[int, int, Tensor]]:
+                 dp_opts: dict, prune: bool, rotation: str, up: Tensor, arclength: bool = False
+                 ) -> list[tuple[int, int, Tensor]]:
     """The ``KEEP_STARTS`` best starting rotations of each pair, ranked on the top two layers only
     (one rotation update each): the full recursion then runs for those alone."""
-    configs = _solve(movs, [ref], jobs, lambdas, dp_opts, prune, max_depth=1)
+    configs = _solve(movs, [ref], jobs, lambdas, dp_opts, prune, max_depth=1, arclength=arclength)
     scored = []
     for (m, r, _), cfg in zip(jobs, configs):
         O_new, e_new = _rotation_update(movs[m], ref, cfg, lambdas[m], rotation, up)
@@ -409,8 +439,12 @@ def index_order_matches(moving: Trees, reference: Trees) -> list[tuple[int, int]
 
 
 def _build_aligned(mov: _Tree, ref: _Tree, match: dict[int, int], gamma: np.ndarray, O: Tensor,
-                   lambdas: Lambdas) -> AlignedTrees:
-    """Write the registered moving tree and the reference in one layout (differentiable in the points)."""
+                   lambdas: Lambdas, arclength: bool = False) -> AlignedTrees:
+    """Write the registered moving tree and the reference in one layout (differentiable in the points).
+
+    With ``arclength`` the moving tree's ``s`` are its children's arc-length positions on the reference parent's
+    scale (:func:`_child_positions`), so the layout's features give the registered distance; decode the moving
+    tree from its own points, not from this layout."""
     Nm, Nr = len(mov.parent), len(ref.parent)
     dtype = torch.float64
     pts_m = mov.points.to(dtype)
@@ -434,8 +468,10 @@ def _build_aligned(mov: _Tree, ref: _Tree, match: dict[int, int], gamma: np.ndar
     qm = _rotate(warp_srvf(srvf(pts_m), g), O.to(device=dev, dtype=dtype))
     qr = srvf(pts_r)
     M, d = qr.shape[1:]
-    # a child's parameter moves with its parent's warp (identity for unmatched parents)
-    s_m = np.array([0.0 if a == 0 else np.interp(mov.s[a], gamma[mov.parent[a]], grid) for a in range(Nm)])
+    # a child's parameter moves with its parent's warp (identity for unmatched parents: a null partner at the same s)
+    s_m = np.array([0.0 if a == 0 else mov.s[a] if mov.parent[a] not in match else _child_positions(
+        mov, ref, mov.parent[a], match[mov.parent[a]], [a], gamma[mov.parent[a]], grid, arclength)[0]
+        for a in range(Nm)])
     q = torch.zeros(2, S, M, d, dtype=dtype, device=dev)
     s = torch.zeros(2, S, dtype=dtype, device=dev)
     present = torch.zeros(2, S, dtype=torch.bool, device=dev)
@@ -509,7 +545,7 @@ def register_to_reference(trees: Trees, reference: Trees, lambdas: Sequence[floa
                           rotation: str = "none", up: Sequence[float] | Tensor | None = None, n_starts: int = 12,
                           max_iters: int = 10, tol: float = 1e-3, neighbourhood: int = 4, band: int | None = None,
                           coarse: int | None = 32, refine: int = 0, prune: bool = True,
-                          lp_relative: bool = True) -> list[TreeRegistration]:
+                          lp_relative: bool = True, positions: str = "warped") -> list[TreeRegistration]:
     """Register every tree of ``trees`` (moving) onto the single tree ``reference``, all at once.
 
     Args:
@@ -539,6 +575,17 @@ def register_to_reference(trees: Trees, reference: Trees, lambdas: Sequence[floa
             identity precision between consecutive synthetic frames, 97 % with ``lp = 9`` relative; the scale
             trades identities against cycle consistency, see ``RELATIVE_LP_SCALE``). ``False`` uses ``lambdas[2]`` as it
             is. The effective weights (per moving tree) are in the results' ``aligned.lambdas``.
+        positions: how a matched child's place on its parent is compared. ``"warped"`` (SPEC §3, default):
+            ``s'_c = gamma^{-1}(s_c)``, the child moves with its parent's warp (and the parent's warp is refitted
+            to carry matched children onto their partners). ``"arclength"``: its arc length from the parent's
+            base, in units of the reference parent's length, whatever the warp: a plant grows at its apices and
+            an organ stays where it sprouted, so arc length from the base is the place that stays put, while a
+            fraction of a growing stem is not (the same organ sits lower in the fraction the further the plant
+            is along) and an elastic warp of a nearly straight stem carries children almost freely. For
+            identities across plants at different stages (:mod:`torch4dtree.bench.hierarchy`): bean plants
+            otherwise register one trifoliate node shifted and turned by 180 degrees, at a lower distance than
+            the true correspondence. Not symmetric in the pair (the reference parent's length is the unit);
+            the moving tree's ``s`` in ``aligned`` are then on the reference's scale.
 
     Returns:
         One :class:`TreeRegistration` per moving tree. Every depth of every registration (and every
@@ -546,6 +593,9 @@ def register_to_reference(trees: Trees, reference: Trees, lambdas: Sequence[floa
     """
     lam = _check_lambdas(lambdas)
     check_rotation_mode(rotation, reference.dim)
+    if positions not in POSITIONS:
+        raise ValueError(f"unknown positions {positions!r}; expected one of {POSITIONS}")
+    arc = positions == "arclength"
     if reference.num_trees != 1:
         raise ValueError(f"reference must be a single tree, got {reference.num_trees}")
     if trees.dim != reference.dim:
@@ -557,19 +607,19 @@ def register_to_reference(trees: Trees, reference: Trees, lambdas: Sequence[floa
     lams = [effective_lambdas(lam, reference, t) if lp_relative else lam for t in singles]
     up_t = torch.as_tensor((0.0, 0.0, 1.0) if up is None else up, dtype=torch.float64)
     dp_opts = {"neighbourhood": neighbourhood, "band": band, "coarse": coarse, "refine": refine}
-    ref = _prepare(reference, lam)
-    movs = [_prepare(t, lt) for t, lt in zip(singles, lams)]
+    ref = _prepare(reference, lam, arc)
+    movs = [_prepare(t, lt, arc) for t, lt in zip(singles, lams)]
     with torch.no_grad():
         starts = [_initial_rotations(m, ref, rotation, up_t, n_starts, dp_opts) for m in movs]
         best: list[_Config | None] = [None] * len(movs)
         jobs = [(m, 0, O) for m, Os in enumerate(starts) for O in Os]
         if rotation != "none" and max(len(Os) for Os in starts) > KEEP_STARTS:
             if reference.T > RANK_T:  # ranking only compares starts: coarser curves do (DP cost ~ T^2)
-                coarse = [_prepare(t, lt) for t, lt in zip(trees.resample(RANK_T).split(), lams)]
-                jobs = _rank_starts(coarse, _prepare(reference.resample(RANK_T), lam), jobs, lams, dp_opts, prune,
-                                    rotation, up_t)
+                coarse = [_prepare(t, lt, arc) for t, lt in zip(trees.resample(RANK_T).split(), lams)]
+                jobs = _rank_starts(coarse, _prepare(reference.resample(RANK_T), lam, arc), jobs, lams, dp_opts, prune,
+                                    rotation, up_t, arc)
             else:
-                jobs = _rank_starts(movs, ref, jobs, lams, dp_opts, prune, rotation, up_t)
+                jobs = _rank_starts(movs, ref, jobs, lams, dp_opts, prune, rotation, up_t, arc)
             # the identity always runs in full, so a rotation search never ends worse than rotation="none"
             # (ranking on the top layers could drop it: vertical was worse than none on 3 of 102 Pheno4D pairs)
             eye = torch.eye(reference.dim, dtype=torch.float64)
@@ -577,7 +627,7 @@ def register_to_reference(trees: Trees, reference: Trees, lambdas: Sequence[floa
             jobs += [(m, 0, eye) for m in range(len(movs)) if m not in kept_identity]
         last = [math.inf] * len(jobs)
         for _ in range(max(max_iters, 1)):
-            configs = _solve(movs, [ref], jobs, lams, dp_opts, prune)
+            configs = _solve(movs, [ref], jobs, lams, dp_opts, prune, arclength=arc)
             nxt, nlast = [], []
             for (m, _, _), cfg, prev in zip(jobs, configs, last):
                 cur = best[m]
@@ -611,12 +661,12 @@ def register_to_reference(trees: Trees, reference: Trees, lambdas: Sequence[floa
     out = []
     for mov, cfg, lam_m in zip(movs, best, lams):
         assert cfg is not None
-        aligned = _build_aligned(mov, ref, cfg.match, cfg.gamma, cfg.O, lam_m)
+        aligned = _build_aligned(mov, ref, cfg.match, cfg.gamma, cfg.O, lam_m, arc)
         dist = _pair_distance(aligned)
         eye = torch.eye(reference.dim, dtype=torch.float64)
         ident = np.tile(np.linspace(0.0, 1.0, reference.T), (len(mov.parent), 1))
         base_match = _index_order_match(mov, ref)
-        base = _build_aligned(mov, ref, base_match, ident, eye, lam_m)
+        base = _build_aligned(mov, ref, base_match, ident, eye, lam_m, arc)
         dist_before = _pair_distance(base)
         used_base = bool(dist_before < dist)
         if used_base:  # the index-order solution is a valid candidate: never return worse
