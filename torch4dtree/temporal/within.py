@@ -28,7 +28,7 @@ from torch import Tensor
 from ..curves.srvf import interpolate_curve, inverse_srvf, srvf, uniform_grid, warp_srvf
 from ..curves.warps import compose_warps
 from ..trees.aligned import AlignedTrees
-from ..trees.registration import TreeRegistration, effective_lambdas, register_trees
+from ..trees.registration import ORDER_TOL, TreeRegistration, effective_lambdas, register_trees
 from ..trees.structures import Trees, TreeSequence
 
 __all__ = ["AlignedSequence", "IdentityAccuracy", "identity_accuracy", "register_sequence"]
@@ -125,7 +125,7 @@ def _rotate(q: Tensor, R: Tensor) -> Tensor:
 
 
 def register_sequence(seq: TreeSequence, lambdas: Sequence[float] = (1.0, 1.0, 9.0), rotation: str = "none",
-                      progress: bool = False, lp_relative: bool = True,
+                      progress: bool = False, lp_relative: bool = True, order_tol: float | None = ORDER_TOL,
                       **registration_kwargs: object) -> AlignedSequence:
     """Register every frame of a 4D tree onto its next frame and write all frames in one layout.
 
@@ -143,6 +143,13 @@ def register_sequence(seq: TreeSequence, lambdas: Sequence[float] = (1.0, 1.0, 9
             metric uses the last frame's. For plants in mm an absolute ``lp = 1`` is negligible and similar
             leaves at neighbouring nodes swap.
         rotation: ``"none"`` (frames share a frame of reference, as scans do), ``"vertical"`` or ``"so3"``.
+        order_tol: order-preserving matching of each node's children (``register_trees``' ``order_tol``): organs
+            never pass each other along a parent as a plant grows, so matched children keep their order in ``s``,
+            except siblings within ``order_tol`` (a fraction of the parent, default
+            :data:`~torch4dtree.trees.registration.ORDER_TOL`) of each other, which share a node. ``None``: any
+            permutation, as across plants. Without the order, a leaf that grew from 3 to 147 mm in one step swapped
+            with a similar long leaf two nodes below it (realistic synthetic maize: 64-70 % identity on 4 of 8 plants'
+            worst frame pair).
         progress: show a progress bar over the ``n - 1`` registrations.
         registration_kwargs: passed to :func:`torch4dtree.trees.register_trees` (DP settings, ``up``, ...).
 
@@ -167,7 +174,7 @@ def register_sequence(seq: TreeSequence, lambdas: Sequence[float] = (1.0, 1.0, 9
         # 57 % with the pair's mean, 100 % with the next frame's length)
         regs: list[TreeRegistration] = [
             register_trees(single[j], single[j + 1], effective_lambdas(lam, single[j + 1]) if lp_relative else lam,
-                           rotation, lp_relative=False, **registration_kwargs)
+                           rotation, lp_relative=False, order_tol=order_tol, **registration_kwargs)
             for j in tqdm(range(n - 1), disable=not progress, desc=f"registering {seq.name or 'sequence'}",
                           unit="pair")
         ]
