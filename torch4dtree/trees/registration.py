@@ -212,57 +212,59 @@ def _ordered_assignment(cost: np.ndarray, null_mov: np.ndarray, null_ref: np.nda
     """The cheapest partial matching that keeps the order of the children along their parents.
 
     Each side's children are grouped by position (:func:`_order_groups`, ``s_mov (k1,)`` after the parent's warp,
-    ``s_ref (k2,)``); a group is matched with at most one group of the other side, strictly monotonically (an
-    edit-distance DP over the two group lists, ``O(g1 g2)``), and inside a matched pair of groups any partial
-    matching is allowed (:func:`_assignment`), so siblings at one node may swap. Costs as :func:`_assignment`.
-    Why: organs along a parent never pass each other as a plant grows, while the assignment lets a long leaf
-    match a similar one two nodes away and a tiny one take its place (maize frames 5 -> 6, 64-70 % identity).
+    ``s_ref (k2,)``). The matching is a sequence of blocks in order along both parents: one group of one side
+    against a run of consecutive groups of the other (any partial matching inside a block, :func:`_assignment`,
+    so siblings at one node may swap, and two siblings sharing a node may part into two nodes of the next
+    frame); groups outside the blocks are unmatched. Exact over that family by an edit-distance DP over the two
+    group lists (``O(g1 g2)`` cells; runs only start from groups of two or more). With singleton groups this is
+    the plain order-preserving alignment. It never crosses two pairs whose groups differ on both sides; it
+    misses only staircases (two adjacent multi-member groups each shared by two blocks). Costs as
+    :func:`_assignment`. Why: organs along a parent never pass each other as a plant grows, while the assignment
+    lets a long leaf match a similar one two nodes away and a tiny one take its place.
     """
     G1, G2 = _order_groups(s_mov, tol), _order_groups(s_ref, tol)
     m1, m2 = len(G1), len(G2)
-    # block[x, y]: the best matching inside moving group x and reference group y (nulls allowed)
-    pair = np.minimum(cost, null_mov[:, None] + null_ref[None, :])
-    block = np.empty((m1, m2))
-    inner: dict[tuple[int, int], list[tuple[int, int]]] = {}
-    for x, g in enumerate(G1):
-        for y, h in enumerate(G2):
-            if len(g) == 1 and len(h) == 1:
-                block[x, y] = pair[g[0], h[0]]
-            else:
-                c, p = _assignment(cost[np.ix_(g, h)], null_mov[g], null_ref[h])
-                block[x, y] = c
-                inner[(x, y)] = [(g[i], h[j]) for i, j in p]
+    pair = np.minimum(cost, null_mov[:, None] + null_ref[None, :])  # one child each: matched or both null
+
+    def block(x0: int, x1: int, y0: int, y1: int) -> tuple[float, list[tuple[int, int]]]:
+        g = [i for grp in G1[x0:x1] for i in grp]
+        h = [j for grp in G2[y0:y1] for j in grp]
+        if len(g) == 1 and len(h) == 1:
+            i, j = g[0], h[0]
+            return float(pair[i, j]), [(i, j)] if cost[i, j] < null_mov[i] + null_ref[j] else []
+        c, p = _assignment(cost[np.ix_(g, h)], null_mov[g], null_ref[h])
+        return c, [(g[i], h[j]) for i, j in p]
+
     skip1 = [float(null_mov[g].sum()) for g in G1]
     skip2 = [float(null_ref[h].sum()) for h in G2]
     D = np.zeros((m1 + 1, m2 + 1))
     D[1:, 0] = np.cumsum(skip1)
     D[0, 1:] = np.cumsum(skip2)
-    step = np.zeros((m1 + 1, m2 + 1), dtype=np.int8)  # 0: match groups, 1: skip moving group, 2: skip reference
-    step[1:, 0], step[0, 1:] = 1, 2
+    # back pointer: (groups of moving, groups of reference) consumed by the last step; (n, 0) / (0, n): skips
+    back: dict[tuple[int, int], tuple[int, int]] = {(x, 0): (1, 0) for x in range(1, m1 + 1)}
+    back.update({(0, y): (0, 1) for y in range(1, m2 + 1)})
     for x in range(1, m1 + 1):
         for y in range(1, m2 + 1):
-            best, how = D[x - 1, y - 1] + block[x - 1, y - 1], 0
-            if D[x - 1, y] + skip1[x - 1] < best:
-                best, how = D[x - 1, y] + skip1[x - 1], 1
+            best, how = D[x - 1, y] + skip1[x - 1], (1, 0)
             if D[x, y - 1] + skip2[y - 1] < best:
-                best, how = D[x, y - 1] + skip2[y - 1], 2
-            D[x, y], step[x, y] = best, how
+                best, how = D[x, y - 1] + skip2[y - 1], (0, 1)
+            runs = [(1, 1)]  # moving group x - 1 against ref groups y - r .. y - 1, or the converse
+            if len(G1[x - 1]) > 1:
+                runs += [(1, r) for r in range(2, y + 1)]
+            if len(G2[y - 1]) > 1:
+                runs += [(r, 1) for r in range(2, x + 1)]
+            for r1, r2 in runs:
+                c = D[x - r1, y - r2] + block(x - r1, x, y - r2, y)[0]
+                if c < best:
+                    best, how = c, (r1, r2)
+            D[x, y], back[(x, y)] = best, how
     pairs: list[tuple[int, int]] = []
     x, y = m1, m2
     while x > 0 or y > 0:
-        how = step[x, y]
-        if how == 0:
-            if (x - 1, y - 1) in inner:
-                pairs += inner[(x - 1, y - 1)]
-            else:
-                i, j = G1[x - 1][0], G2[y - 1][0]
-                if cost[i, j] < null_mov[i] + null_ref[j]:
-                    pairs.append((i, j))
-            x, y = x - 1, y - 1
-        elif how == 1:
-            x -= 1
-        else:
-            y -= 1
+        r1, r2 = back[(x, y)]
+        if r1 and r2:
+            pairs += block(x - r1, x, y - r2, y)[1]
+        x, y = x - r1, y - r2
     return float(D[m1, m2]), sorted(pairs)
 
 
