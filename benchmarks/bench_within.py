@@ -50,6 +50,17 @@ def swaps(slots: list[list[int | None]], j: int, skip: tuple[int, ...] = (99,)) 
     return out
 
 
+def kind_of_error(slots: list[list[int | None]], x: int, organ: int, other: int | None) -> str:
+    """Why an organ of frame ``x`` is counted wrong: ``split`` (the hierarchy cut it in two: its label names two
+    branches of its frame), ``spur`` (absent from the other frame, a skeletonisation spur holds its slot there),
+    ``swap`` (another organ holds its slot) or ``lost`` (present in the other frame, its slot empty there)."""
+    if sum(v == organ for v in slots[x]) > 1:
+        return "split"
+    if other == 99:
+        return "spur"
+    return "lost" if other is None else "swap"
+
+
 def measure(kind: str, worst: int = 5, **kwargs: object) -> dict:
     rows, t0 = [], time.perf_counter()
     for p in plants(kind):
@@ -57,8 +68,9 @@ def measure(kind: str, worst: int = 5, **kwargs: object) -> dict:
         acc = identity_accuracy(al, p.sequence.frames.label)
         slots = _slot_labels(al, p.sequence.frames.label)
         rows.append({"plant": p.name, "per_pair": acc.per_pair.tolist(), "sequence": acc.sequence,
-                     "swaps": {j: swaps(slots, j) for j in range(len(acc.per_pair))
-                               if float(acc.per_pair[j]) < 0.95}})
+                     "swaps": {j: [(d, a, b, kind_of_error(slots, j if d == ">" else j + 1, a, b))
+                                   for d, a, b in swaps(slots, j)]
+                               for j in range(len(acc.per_pair)) if float(acc.per_pair[j]) < 0.95}})
     pairs = [(x, r["plant"], j) for r in rows for j, x in enumerate(r["per_pair"])]
     seqs = [r["sequence"] for r in rows]
     bad = sorted(pairs)[:worst]
@@ -66,6 +78,7 @@ def measure(kind: str, worst: int = 5, **kwargs: object) -> dict:
             "worst_pair": min(x for x, *_ in pairs), "mean_pair": sum(x for x, *_ in pairs) / len(pairs),
             "sequence_mean": sum(seqs) / len(seqs), "sequence_min": min(seqs),
             "sequences_ok": sum(s >= 0.95 for s in seqs), "plants": len(seqs),
+            "errors_in_bad_pairs": dict(Counter(e[3] for r in rows for v in r["swaps"].values() for e in v)),
             "worst": [{"plant": p, "pair": j, "accuracy": x,
                        "swaps": next(r for r in rows if r["plant"] == p)["swaps"][j]} for x, p, j in bad
                       if x < 0.95],
@@ -90,9 +103,10 @@ def main() -> None:
               f"min {r['sequence_min']:.3f}, {r['sequences_ok']} / {r['plants']} >= 95 % "
               f"({r['seconds']:.0f} s)")
         for w in r["worst"]:
-            c = Counter((d, a, b) for d, a, b in w["swaps"])
+            c = Counter(w["swaps"])
             print(f"    {w['plant']} pair {w['pair']}: {w['accuracy']:.3f}  organ, its slot in frame j+1 (>) / j (<): "
-                  + ", ".join(f"{a}{d}{b}" for (d, a, b), _ in c.most_common()))
+                  + ", ".join(f"{a}{d}{b} ({e})" for (d, a, b, e), _ in c.most_common()))
+        print(f"    errors in the pairs below 95 %: {r['errors_in_bad_pairs']}")
 
 
 if __name__ == "__main__":
