@@ -7,6 +7,7 @@ import json
 import numpy as np
 import pytest
 import torch
+from conftest import pheno4d
 
 from torch4dtree.cli import main
 from torch4dtree.data import synthetic_dataset, synthetic_plant, write_dataset
@@ -68,3 +69,42 @@ def test_register4d_command_line(tmp_path, capsys):
     assert main(["register4d", str(a), str(b), "--T", "16", "--out", str(tmp_path / "out")]) == 2
     assert "exists" in capsys.readouterr().err
     assert main(["register4d", str(a / "times.json"), str(b)]) == 2
+
+
+def test_spatial_stage_keeps_the_smallest_candidate():
+    """The kept spatial candidate is the smallest of the three 4D distances, recomputed here from their layouts."""
+    from torch4dtree.temporal.registration import register_trajectories
+    from torch4dtree.temporal.spatiotemporal import _trajectories, combine_sequences, representative_tree
+    from torch4dtree.trees.registration import effective_lambdas, register_trees
+
+    a, b = (p.sequence for p in synthetic_dataset("bean", 2, 3, n_frames=5, T=16, dtype=torch.float64))
+    r = register4d(a, b, n_t=16)
+    A, B = r.sequences
+    rep_a, rep_b = representative_tree(A), representative_tree(B)
+    lam = effective_lambdas((1.0, 1.0, 1.0), a.frames[len(a) - 1])
+    reg = register_trees(rep_b, rep_a, lam, "none", lp_relative=False)
+    ident = torch.linspace(0, 1, rep_b.T, dtype=torch.float64).expand(rep_b.points.shape[0], -1)
+    eye = torch.eye(3, dtype=torch.float64)
+    dists = {}
+    for name, gamma in (("registered", reg.gamma.double()), ("correspondence", ident)):
+        layout = combine_sequences(A, B, reg.matches, gamma, eye, lam)
+        _, x, y = _trajectories(layout, len(A), A.times, B.times, 16, None)
+        dists[name] = float(register_trajectories(x, y).distance_before)
+    dists["index_order"] = r.distance_before
+    assert r.distance_after_spatial == pytest.approx(min(dists.values()), rel=1e-9)
+    assert r.spatial_candidate == min(dists, key=dists.get)
+    assert r.kept_index_order == (r.spatial_candidate == "index_order")
+
+
+def test_spatial_stage_lowers_the_real_pair_where_the_found_warps_misfit():
+    """Pheno4D tom_2 / tom_5 (.mat): the registration as found gives a larger 4D distance than index order (its
+    warps, fitted to each branch's latest shape, misfit the younger frames); its correspondence with identity
+    warps lowers the distance, so the spatial stage does too."""
+    from torch4dtree.io import LoadOptions, read_sequence
+
+    opts = LoadOptions(T=64, dtype=torch.float64)
+    a, b = (read_sequence(pheno4d("mat", name), opts).sequence for name in ("tom_2_seq", "tom_5_seq"))
+    r = register4d(a, b)
+    assert r.distance_after_spatial < r.distance_before - 1e-3
+    assert r.spatial_candidate == "correspondence"
+    assert r.distance_after_temporal <= r.distance_after_spatial

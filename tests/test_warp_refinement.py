@@ -111,3 +111,32 @@ def test_more_refinement_iterations_lower_the_energy_further(backend: str) -> No
     for lo, hi in ((1, 0), (2, 1), (8, 2)):
         assert (e[lo] <= e[hi] * (1 + 1e-12)).all()
     assert float(e[8].mean()) < 0.98 * float(e[1].mean())
+
+
+def test_refinement_strides() -> None:
+    assert R.refinement_strides(1) == [1]
+    assert R.refinement_strides(8) == [4, 2, 1]
+    assert R.refinement_strides(6) == [3, 1]
+    assert R.refinement_strides(5) == [1]
+    with pytest.raises(ValueError):
+        R.refinement_strides(0)
+
+
+def test_refine_on_finer_backends_agree_and_never_raise_the_energy() -> None:
+    """Moving curves given 8 times finer (rough: a kink at every fine point): both backends give the same warps and
+    readings, and the reading kept is never farther than the start's on the samples."""
+    T, F = 25, 8
+    fine = rough_curves(6, F * (T - 1) + 1, seed=6)
+    q1 = srvf(rough_curves(6, T, seed=7))
+    start = W.dp_warp(q1, srvf(fine[:, ::F]), band=None, refine=4).gamma
+    a, fa = R.refine_on_finer(q1, fine, start, 8, "numba")
+    b, fb = R.refine_on_finer(q1, fine, start, 8, "torch")
+    assert torch.equal(fa, fb) and bool(fa.any())
+    assert torch.allclose(a, b, atol=1e-9, rtol=0)
+    e_start = _energy(q1, fine[:, ::F], start)
+    e_kept = torch.where(fa, _energy(q1, fine, a), _energy(q1, fine[:, ::F], a))
+    assert bool((e_kept <= e_start * (1 + 1e-12)).all())
+    assert bool((torch.diff(a, dim=1) > 0).all()) and bool((a[:, 0] == 0).all()) and bool((a[:, -1] == 1).all())
+    assert torch.equal(a[~fa], start[~fa])
+    with pytest.raises(ValueError, match="multiple"):
+        R.refine_on_finer(q1, fine[:, :-1], start, 8)

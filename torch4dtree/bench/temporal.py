@@ -24,7 +24,7 @@ from ..curves.rotation import optimal_rotation
 from ..curves.srvf import interpolate_curve, srvf, srvf_sq_distance
 from ..curves.warps import invert_warp, random_warp
 from ..temporal.registration import register_trajectories, time_warp_trajectory
-from ..temporal.trajectory import resample_trajectory
+from ..temporal.trajectory import OVERSAMPLE, fine_size, resample_trajectory
 from ..temporal.within import AlignedSequence, identity_accuracy, register_sequence
 
 __all__ = ["benchmark_growth_clocks", "benchmark_pheno4d_within", "benchmark_synthetic_within",
@@ -48,15 +48,17 @@ def smooth_trajectories(B: int, n_t: int, k: int, generator: torch.Generator, wa
     return start[:, None] + drift[:, None] * t[..., None] + torch.einsum("bmk,bmkn->bnk", amp, waves)
 
 
-def warped_trajectory_pairs(B: int, n_t: int, k: int, seed: int = 0, strength: float = 1.0
+def warped_trajectory_pairs(B: int, n_t: int, k: int, seed: int = 0, strength: float = 1.0, oversample: int = 1
                             ) -> tuple[Tensor, Tensor, Tensor]:
     """``(ref, mov, true)``: trajectories, their copies time-warped by smooth random warps ``gamma``, and the
-    warp that registers ``mov`` onto ``ref`` (``gamma^{-1}``) on the grid, ``(B, n_t, k), (B, n_t, k), (B, n_t)``."""
+    warp that registers ``mov`` onto ``ref`` (``gamma^{-1}``) on the grid, ``(B, n_t, k), (B, m, k), (B, n_t)``;
+    ``mov`` has ``m = fine_size(n_t, oversample=oversample)`` samples (``n_t`` by default)."""
     fine = random_warp(B, 2001, generator=torch.Generator().manual_seed(seed + 1), strength=strength)
     grid = torch.linspace(0, 1, n_t, dtype=torch.float64).expand(B, n_t)
-    gamma = interpolate_curve(fine[..., None], grid)[..., 0]
+    m = fine_size(n_t, oversample=oversample)
+    gamma = interpolate_curve(fine[..., None], torch.linspace(0, 1, m, dtype=torch.float64).expand(B, m))[..., 0]
     ref = smooth_trajectories(B, n_t, k, torch.Generator().manual_seed(seed))
-    mov = smooth_trajectories(B, n_t, k, torch.Generator().manual_seed(seed), warp=gamma)
+    mov = smooth_trajectories(B, m, k, torch.Generator().manual_seed(seed), warp=gamma)
     true = interpolate_curve(invert_warp(fine)[..., None], grid)[..., 0]
     return ref, mov, true
 
@@ -83,8 +85,15 @@ def benchmark_temporal(pairs: int = 1000, n_t: int = 32, k: int = 10, repeats: i
     register_trajectories(ref[:4], mov[:4])  # warm-up (numba)
     batched = _best_of(lambda: register_trajectories(ref, mov), repeats) / pairs
     singles = [_best_of(lambda i=i: register_trajectories(ref[i], mov[i]), repeats) for i in range(50)]
+    # the moving trajectory OVERSAMPLE times finer, as register4d passes it (adds the refinement on the fine polyline)
+    fine = warped_trajectory_pairs(pairs, n_t, k, seed=0, oversample=OVERSAMPLE)[1]
+    register_trajectories(ref[:4], fine[:4])
+    batched_fine = _best_of(lambda: register_trajectories(ref, fine), repeats) / pairs
+    singles_fine = [_best_of(lambda i=i: register_trajectories(ref[i], fine[i]), repeats) for i in range(50)]
     out: dict = {"n_t": n_t, "k": k, "pairs": pairs, "batched_ms_per_pair": 1e3 * batched,
                  "batched_pairs_per_s": 1.0 / batched, "single_pair_ms_median": 1e3 * statistics.median(singles),
+                 "oversample": OVERSAMPLE, "batched_fine_ms_per_pair": 1e3 * batched_fine,
+                 "single_pair_fine_ms_median": 1e3 * statistics.median(singles_fine),
                  "paper_seconds": PAPER_TEMPORAL_SECONDS, "torch_threads": torch.get_num_threads(), "accuracy": []}
     for nt in grid:
         r0, m0, true = warped_trajectory_pairs(accuracy_pairs, nt, k, seed=1)

@@ -34,7 +34,7 @@ try:  # numba is optional: without it the torch backend is used everywhere
     import numba
     import numba.core.event
 
-    from .refinement import _nb_gauss_newton
+    from .refinement import _nb_gauss_newton, _nb_refine_finer
 
     HAVE_NUMBA = True
 except ImportError:  # pragma: no cover - exercised only without numba
@@ -698,6 +698,9 @@ def _first_call(*args: object, hint: bool = True) -> float | None:
         notice = _CompileNotice(hint)
         with numba.core.event.install_listener("numba:compile", notice):
             _nb_pairs(*args)
+            # the temporal registration's refinement on a finer moving trajectory (its real calls' argument types)
+            _nb_refine_finer(np.zeros((0, 2, 1)), np.zeros((0, 3, 1)), np.zeros((0, 3)), 0, np.ones(1, np.int64),
+                             np.zeros(0, np.bool_))
         _READY = True
         return notice.seconds
 

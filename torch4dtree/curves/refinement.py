@@ -165,6 +165,82 @@ if HAVE_NUMBA:
                 break
 
 
+    @numba.njit(cache=True, boundscheck=False)
+    def _nb_refine_finer(q1: np.ndarray, fine: np.ndarray, gamma: np.ndarray, iters: int, strides: np.ndarray,
+                         finer: np.ndarray) -> None:
+        """:func:`refine_on_finer` for a batch: ``q1 (B, M, d)``, ``fine (B, M2+1, d)``, ``gamma (B, M+1)`` and
+        ``finer (B,)`` written in place."""
+        B, M, d = q1.shape
+        F = (fine.shape[1] - 1) // M
+        R, J0, J1 = np.empty((M, d)), np.empty((M, d)), np.empty((M, d))
+        P, D = np.empty((M + 1, d)), np.empty((M + 1, d))
+        for b in range(B):
+            g = gamma[b].copy()
+            for s in strides:
+                _nb_gauss_newton(q1[b], np.ascontiguousarray(fine[b, ::s]), g, iters)
+            e_start = _nb_residuals(q1[b], np.ascontiguousarray(fine[b, ::F]), gamma[b], R, J0, J1, P, D)
+            e_fine = _nb_residuals(q1[b], fine[b], g, R, J0, J1, P, D)
+            # the levels below the finest minimise other energies: the start read on fine is a candidate too
+            e0 = _nb_residuals(q1[b], fine[b], gamma[b], R, J0, J1, P, D)
+            if e0 < e_fine:
+                g[:] = gamma[b]
+                e_fine = e0
+            finer[b] = e_fine < e_start
+            if finer[b]:
+                gamma[b, :] = g
+
+
+def refinement_strides(factor: int) -> list[int]:
+    """Subsampling strides of a polyline ``factor`` times finer than the warp's grid, coarse to fine: ``factor / 2^j``
+    while it divides ``factor`` (each level's polyline has ``factor / stride`` segments per warp segment), then 1."""
+    if not isinstance(factor, int) or factor < 1:
+        raise ValueError(f"factor must be an integer >= 1, got {factor!r}")
+    strides, f = [], 2
+    while f < factor:
+        if factor % f == 0:
+            strides.append(factor // f)
+        f *= 2
+    return strides + [1]
+
+
+def refine_on_finer(q1: Tensor, fine: Tensor, gamma: Tensor, iters: int, backend: str = "numba"
+                    ) -> tuple[Tensor, Tensor]:
+    """Refine warps ``gamma (B, M+1)`` of the polylines ``fine (B, F M + 1, d)`` onto SRVFs ``q1 (B, M, d)``.
+
+    The moving curve is given ``F`` times finer than the warp's grid (every ``F``-th point on it), e.g. a
+    trajectory through frames whose times fall between the grid's: its polyline on the grid (its samples) cuts
+    those corners, the fine one nearly does not, and ``fine(gamma(s_i))`` can put them where ``q1`` has them.
+    Gauss-Newton runs on ``fine`` subsampled ``F / 2, F / 4, ...`` times, then on ``fine`` itself
+    (:func:`refinement_strides`; going straight to ``fine`` from a warp found on the samples can stop in a shallower
+    minimum).
+
+    Returns:
+        ``(gamma, finer)``: ``finer (B,)`` where the warp read on ``fine`` (the refined one, or the start if that is
+        lower) has a lower energy than the start read on the samples ``fine[:, ::F]``; there ``gamma`` is that warp,
+        elsewhere the start. So the energy of the returned reading is never above the start's.
+    """
+    B, M, _ = q1.shape
+    if (fine.shape[1] - 1) % M:
+        raise ValueError(f"fine must have a multiple of {M} segments, got {fine.shape[1] - 1}")
+    F = (fine.shape[1] - 1) // M
+    strides = refinement_strides(F)
+    if backend == "numba" and HAVE_NUMBA:
+        out = gamma.detach().to("cpu", torch.float64).contiguous().numpy().copy()
+        finer = np.zeros(B, np.bool_)
+        _nb_refine_finer(q1.detach().to("cpu", torch.float64).contiguous().numpy(),
+                         fine.detach().to("cpu", torch.float64).contiguous().numpy(), out, int(iters),
+                         np.asarray(strides, np.int64), finer)
+        return torch.from_numpy(out).to(gamma.device, gamma.dtype), torch.from_numpy(finer).to(gamma.device)
+    g = gamma
+    for s in strides:
+        g = gauss_newton_torch(q1, fine[:, ::s].contiguous(), g, iters)
+    e0 = _residuals_torch(q1, fine, gamma)[0]
+    e_fine = _residuals_torch(q1, fine, g)[0]
+    g = torch.where((e0 < e_fine)[:, None], gamma, g)
+    finer = torch.minimum(e0, e_fine) < _residuals_torch(q1, fine[:, ::F].contiguous(), gamma)[0]
+    return torch.where(finer[:, None], g, gamma), finer
+
+
 def _residuals_torch(q1: Tensor, beta2: Tensor, x: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """Torch twin of ``_nb_residuals``: ``q1 (B, M, d)``, ``beta2 (B, M2+1, d)``, ``x (B, M+1)``
     ``-> e (B,), R, J0, J1 (B, M, d)``."""

@@ -165,7 +165,7 @@ def index_order_registration(res: SpatiotemporalRegistration) -> SpatiotemporalR
     # as register4d builds its "before" state (all components: nothing of the shapes is lost)
     pca, alpha_a, alpha_b = _trajectories(layout, len(A), A.times, B.times, n_t, None)
     return res._replace(pca=pca, layout=layout, alpha_ref=alpha_a, alpha_mov=alpha_b, alpha_mov_registered=alpha_b,
-                        matches=matches, warp=ident_t)
+                        alpha_mov_fine=None, matches=matches, warp=ident_t)
 
 
 def _geodesic4d_figure(data: EvalData, settings: EvalSettings, lay: FigureLayout, path: Path) -> Path | None:

@@ -75,9 +75,12 @@ def _registration_4d(data: EvalData, kind: str, settings: EvalSettings, progress
         "ratio": statistics.fmean(after) / statistics.fmean(before) if rows else float("nan"),
         "lowered": sum(a < b - 1e-9 for a, b in zip(after, before)),
         "kept_index_order": sum(r.kept_index_order for _, _, r in rows),
+        "spatial_candidates": {c: sum(r.spatial_candidate == c for _, _, r in rows)
+                               for c in ("registered", "correspondence", "index_order")},
         "seconds": summary(pair_seconds(data, a, b, r) for a, b, r in rows),
         "rows": [{"reference": a, "moving": b, "before": r.distance_before, "after": r.distance_after_spatial,
-                  "kept_index_order": r.kept_index_order} for a, b, r in rows]}
+                  "kept_index_order": r.kept_index_order, "spatial_candidate": r.spatial_candidate}
+                 for a, b, r in rows]}
     paper = PAPER_TABLE1.get(kind) if data.source in ("mat", "swc") else None  # the paper measured Pheno4D
     if paper is not None:
         out["paper"] = {**paper, "ratio": paper["after"]["mean"] / paper["before"]["mean"]}
@@ -174,11 +177,13 @@ def markdown(report: dict[str, Any]) -> list[str]:
     if worse:
         lines += ["", f"**Worse than the paper's relative reduction** for {', '.join(worse)} (our after / before "
                       "ratio is higher)."]
-    kept = sum(r["kept_index_order"] for r in t1["plants4d"].values())
-    if kept:
-        lines += ["", f"On {kept} pair(s) the registered correspondence gave a larger 4D distance than index order, "
-                      "which was kept (the correspondence is chosen on representative trees, the 4D distance is over "
-                      "all times)."]
+    kept = {c: sum(r.get("spatial_candidates", {}).get(c, 0) for r in t1["plants4d"].values())
+            for c in ("registered", "correspondence", "index_order")}
+    if kept["correspondence"] or kept["index_order"]:
+        lines += ["", f"Spatial stage, the candidate kept by the 4D distance (the correspondence and warps are chosen "
+                      f"on representative trees, the 4D distance is over all times): the registration as found on "
+                      f"{kept['registered']} pair(s), its correspondence with identity warps on "
+                      f"{kept['correspondence']}, index order on {kept['index_order']}."]
     lines += ["", "3D trees: consecutive frames of every plant (day k+1 onto day k).", ""]
     rows = [[src, kind, str(r["pairs"]), fmt(r["before"]["mean"]), fmt(r["after"]["mean"]), fmt(r["after"]["median"]),
              fmt(r["after"]["std"]), fmt(r["ratio"]), f"{r['lowered']}/{r['pairs']}", fmt(r["seconds"]["mean"])]

@@ -10,12 +10,12 @@
 
 from .registration import TemporalRegistration, geodesic4d, register_trajectories, time_warp_trajectory
 from .spatiotemporal import SpatiotemporalRegistration, combine_sequences, register4d, representative_tree
-from .trajectory import Trajectory, resample_trajectory, trajectory_from_srvf, trajectory_srvf
+from .trajectory import Trajectory, fine_size, resample_trajectory, trajectory_from_srvf, trajectory_srvf
 from .within import AlignedSequence, IdentityAccuracy, identity_accuracy, register_sequence
 
 __all__ = [
     "AlignedSequence", "IdentityAccuracy", "SpatiotemporalRegistration", "TemporalRegistration", "Trajectory",
-    "combine_sequences", "geodesic4d", "identity_accuracy", "register4d", "register_sequence",
+    "combine_sequences", "fine_size", "geodesic4d", "identity_accuracy", "register4d", "register_sequence",
     "register_trajectories", "representative_tree", "resample_trajectory", "time_warp_trajectory",
     "trajectory_from_srvf", "trajectory_srvf",
 ]

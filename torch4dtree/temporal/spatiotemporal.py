@@ -7,15 +7,19 @@ The pipeline, for 4D trees ``A`` (reference) and ``B`` (moving):
 2. **Cross-sequence spatial registration**: ``B``'s representative tree (every slot's branch from the latest
    frame holding it, in the sequence's own parameterisation) is registered onto ``A``'s. The correspondence,
    warps and rotation found are applied to *every* frame of ``B``, so identities stay consistent over time; both
-   4D trees are written into one union layout (``A``'s slots, then ``B``'s unmatched ones). The index-order
-   correspondence (``B``'s slots matched to ``A``'s by order of ``s``, identity warps) is a candidate too: the
-   correspondence is chosen on one tree, the 4D distance runs over all times, and on 4 of 10 Pheno4D tomato
-   pairs the registered one gave the larger 4D distance; the smaller is kept (``kept_index_order``).
+   4D trees are written into one union layout (``A``'s slots, then ``B``'s unmatched ones). The correspondence
+   and warps are chosen on one tree while the 4D distance runs over all times, so three candidates are scored
+   by the 4D distance and the smallest is kept (``spatial_candidate``): the registration as found
+   (``"registered"``), its correspondence with identity warps (``"correspondence"``: a warp fitted to a
+   branch's latest shape can misfit its younger frames; it was the smallest on 7 of 16 Pheno4D pairs), and the
+   index-order correspondence (``"index_order"``: ``B``'s slots matched to ``A``'s by order of ``s``, identity
+   warps; what *before* is measured with, so the spatial stage never ends above it).
 3. **Tree space**: PCA of all frames' weighted SRVFT features (all components by default, so coefficient
    distances are exactly tree distances); each 4D tree becomes a trajectory in ``R^k``, resampled at ``n_t``
    equally spaced normalised times between its actual frame times.
 4. **Temporal registration** (:func:`register_trajectories`): the optimal time warp of ``B``'s trajectory onto
-   ``A``'s and the rate-invariant distance.
+   ``A``'s and the rate-invariant distance. ``B``'s trajectory is passed :func:`~.trajectory.fine_size` samples, so
+   the warp moves ``B``'s frames (the corners of its trajectory), not only its ``n_t`` samples.
 
 The three distances reported are the same 4D distance, ``sqrt(||alpha_A(0) - alpha_B(0)||^2 + ||q_A - q_B||^2)``
 with ``q`` the SRVF of the trajectory: before any registration (``B``'s slots matched to ``A``'s in index order,
@@ -37,7 +41,7 @@ from ..trees.aligned import AlignedTrees
 from ..trees.registration import effective_lambdas, index_order_matches, register_trees
 from ..trees.structures import Trees, TreeSequence
 from .registration import TemporalRegistration, geodesic4d, register_trajectories
-from .trajectory import resample_trajectory, trajectory_srvf
+from .trajectory import fine_size, resample_trajectory, trajectory_srvf
 from .within import AlignedSequence, _inverse_at, register_sequence
 
 __all__ = ["SpatiotemporalRegistration", "combine_many", "combine_sequences", "grow_union", "open_slots",
@@ -204,13 +208,16 @@ class SpatiotemporalRegistration(NamedTuple):
     * ``warp (n_t,)``: the time warp ``xi`` of ``B`` (``B`` at ``xi(t)`` matches ``A`` at ``t``), on
       ``times (n_t,) = linspace(0, 1, n_t)``.
     * ``alpha_ref``, ``alpha_mov``, ``alpha_mov_registered``: ``(n_t, k)`` trajectories in the tree space.
+    * ``alpha_mov_fine``: ``B``'s trajectory as the temporal registration saw it, ``(fine_size(n_t, B's times), k)``
+      (``alpha_mov`` is every ``F``-th sample of it); ``None``: ``alpha_mov``.
     * ``pca``: the fitted :class:`TreePCA` (decodes coefficients to trees in the common layout).
     * ``layout``: every frame of both 4D trees in the common layout (:class:`AlignedTrees`, ``A``'s frames first).
     * ``sequences``: the two within-sequence registrations; ``matches``: ``[(B slot, A slot)]``.
     * ``temporal``: the :class:`TemporalRegistration`; ``time_span_ref``: ``(t_first, t_last)`` of ``A``.
     * ``seconds``: wall time per stage.
-    * ``kept_index_order``: the registered correspondence gave a larger 4D distance than the index-order one, which
-      was kept (the correspondence is chosen on ``B``'s representative tree, the distance is over all times).
+    * ``kept_index_order``: the index-order correspondence was kept (``spatial_candidate == "index_order"``).
+    * ``spatial_candidate``: which candidate of the spatial stage was kept (module doc): ``"registered"``,
+      ``"correspondence"`` or ``"index_order"``.
     """
 
     distance_before: float
@@ -229,6 +236,8 @@ class SpatiotemporalRegistration(NamedTuple):
     time_span_ref: tuple[float, float]
     seconds: dict[str, float]
     kept_index_order: bool = False
+    spatial_candidate: str = "registered"
+    alpha_mov_fine: Tensor | None = None
 
     def geodesic(self, steps: int = 5) -> list[TreeSequence]:
         """The 4D geodesic from ``A`` to ``B`` (after spatiotemporal registration) as ``steps`` 4D trees.
@@ -253,13 +262,15 @@ class SpatiotemporalRegistration(NamedTuple):
 
 
 def _trajectories(layout: AlignedTrees, n_ref: int, ref_times: Tensor, mov_times: Tensor, n_t: int,
-                  n_components: int | None) -> tuple[TreePCA, Tensor, Tensor]:
+                  n_components: int | None, mov_samples: int | None = None) -> tuple[TreePCA, Tensor, Tensor]:
+    """PCA of ``layout`` and the trajectories ``alpha_ref (n_t, k)``, ``alpha_mov (mov_samples, k)`` (default
+    ``n_t``; :func:`~.trajectory.fine_size` for the temporal registration)."""
     n = layout.num_trees
     k = n - 1 if n_components is None else n_components
     pca = TreePCA(n_components=min(k, n - 1)).fit(layout)
     coeffs = pca.transform(layout)
     alpha_ref = resample_trajectory(coeffs[:n_ref], ref_times.to(coeffs.dtype), n_t)
-    alpha_mov = resample_trajectory(coeffs[n_ref:], mov_times.to(coeffs.dtype), n_t)
+    alpha_mov = resample_trajectory(coeffs[n_ref:], mov_times.to(coeffs.dtype), mov_samples or n_t)
     return pca, alpha_ref, alpha_mov
 
 
@@ -311,29 +322,36 @@ def register4d(reference: TreeSequence | AlignedSequence, moving: TreeSequence |
     t0 = time.perf_counter()
     rep_a, rep_b = representative_tree(A), representative_tree(B)
     reg = register_trees(rep_b, rep_a, lam, rotation, lp_relative=False, **registration_kwargs)
-    after = combine_sequences(A, B, reg.matches, reg.gamma.to(torch.float64), reg.rotation.to(torch.float64), lam)
     ident = torch.linspace(0, 1, rep_b.T, dtype=torch.float64).expand(rep_b.points.shape[0], -1)
-    before = combine_sequences(A, B, index_order_matches(rep_b, rep_a), ident, torch.eye(rep_b.dim,
-                               dtype=torch.float64), lam)
+    eye = torch.eye(rep_b.dim, dtype=torch.float64)
+    index_matches = index_order_matches(rep_b, rep_a)
+    rotation_found = reg.rotation.to(torch.float64)
+    # (name, matches, warps, rotation); index order first: it is what "before" is measured with
+    candidates = [("index_order", index_matches, ident, eye),
+                  ("registered", list(reg.matches), reg.gamma.to(torch.float64), rotation_found),
+                  ("correspondence", list(reg.matches), ident, rotation_found)]
+    layouts = [combine_sequences(A, B, m, g, R, lam) for _, m, g, R in candidates]
     seconds["cross_sequence"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     n_ref = len(A)
-    pca0, a0, b0 = _trajectories(before, n_ref, A.times, B.times, n_t, n_components)
-    pca, alpha_a, alpha_b = _trajectories(after, n_ref, A.times, B.times, n_t, n_components)
+    # B's trajectory finer than n_t, so the temporal registration warps its frames, not its n_t samples
+    fine = fine_size(n_t, B.times)
+    spaces = [_trajectories(lay, n_ref, A.times, B.times, n_t, n_components, fine) for lay in layouts]
     seconds["tree_space"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    d_before = float(register_trajectories(a0, b0).distance_before)
-    d_spatial = float(register_trajectories(alpha_a, alpha_b).distance_before)
-    matches = list(reg.matches)
-    kept_index_order = d_spatial > d_before
-    if kept_index_order:  # the index-order correspondence is a candidate too: never return a worse one
-        pca, alpha_a, alpha_b, after, d_spatial = pca0, a0, b0, before, d_before
-        matches = index_order_matches(rep_b, rep_a)
+    dists = [float(register_trajectories(a, b).distance_before) for _, a, b in spaces]
+    d_before = dists[0]
+    # ties go to the registration as found, then its correspondence, then index order
+    best = min((1, 2, 0), key=lambda i: dists[i])
+    spatial_candidate, matches = candidates[best][0], candidates[best][1]
+    (pca, alpha_a, alpha_b), after, d_spatial = spaces[best], layouts[best], dists[best]
     temporal = register_trajectories(alpha_a, alpha_b)
     seconds["temporal"] = time.perf_counter() - t0
     times = torch.linspace(0, 1, n_t, dtype=alpha_a.dtype)
     span = (float(A.times[0]), float(A.times[-1]))
+    alpha_b_grid = alpha_b[::(fine - 1) // (n_t - 1)]
     return SpatiotemporalRegistration(
-        d_before, d_spatial, float(temporal.distance), temporal.warp, times, alpha_a, alpha_b,
-        temporal.registered, pca, after, (A, B), matches, temporal, span, seconds, kept_index_order)
+        d_before, d_spatial, float(temporal.distance), temporal.warp, times, alpha_a, alpha_b_grid,
+        temporal.registered, pca, after, (A, B), matches, temporal, span, seconds,
+        spatial_candidate == "index_order", spatial_candidate, alpha_b)
 

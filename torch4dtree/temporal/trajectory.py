@@ -15,7 +15,12 @@ from torch import Tensor
 
 from ..curves.srvf import inverse_srvf, srvf
 
-__all__ = ["Trajectory", "resample_trajectory", "trajectory_from_srvf", "trajectory_srvf"]
+__all__ = ["OVERSAMPLE", "Trajectory", "fine_size", "resample_trajectory", "trajectory_from_srvf", "trajectory_srvf"]
+
+# samples per time step of a moving trajectory handed to register_trajectories (fine_size): on Pheno4D warped
+# copies (.mat, n_t = 32) the drop in distance is 98.1 / 96.4 % with 2, 100.0 / 99.9 % with 8 (maize / tomato)
+OVERSAMPLE = 8
+MAX_OVERSAMPLE = 64  # fine_size's cap when frames are packed closer than two fine steps
 
 
 class Trajectory(NamedTuple):
@@ -71,6 +76,29 @@ def resample_trajectory(coeffs: Tensor, times: Tensor, n_t: int = 32) -> Tensor:
     b = c.gather(1, hi.unsqueeze(-1).expand(B, n_t, k))
     out = a + frac * (b - a)
     return out[0] if single else out
+
+
+def fine_size(n_t: int, times: Tensor | None = None, oversample: int = OVERSAMPLE,
+              max_oversample: int = MAX_OVERSAMPLE) -> int:
+    """Samples of a trajectory ``F`` times finer than the ``n_t`` grid (``linspace(0, 1, n_t)`` among them).
+
+    ``resample_trajectory(coeffs, times, fine_size(n_t, times))`` is the moving trajectory that
+    :func:`~torch4dtree.temporal.register_trajectories` can time-warp without cutting the corners its frames make
+    between the ``n_t`` grid times. ``F = oversample``, doubled (up to ``max_oversample``) while two of ``times``
+    (normalised to ``[0, 1]``) are closer than two fine steps: the fine polyline must hold every frame's corner.
+    """
+    if not isinstance(n_t, int) or n_t < 2:
+        raise ValueError(f"n_t must be an integer >= 2, got {n_t!r}")
+    if not isinstance(oversample, int) or oversample < 1:
+        raise ValueError(f"oversample must be an integer >= 1, got {oversample!r}")
+    F = oversample
+    if times is not None and times.shape[-1] > 1:
+        t = torch.as_tensor(times, dtype=torch.float64)
+        t = (t - t[..., :1]) / (t[..., -1:] - t[..., :1])
+        gap = float(torch.diff(t, dim=-1).min())
+        while F < max_oversample and gap * F * (n_t - 1) < 2:
+            F *= 2
+    return F * (n_t - 1) + 1
 
 
 def trajectory_srvf(alpha: Tensor) -> Trajectory:
