@@ -285,6 +285,19 @@ def test_maize_leaves_two_ranked_and_alike():
     assert alike >= 4
 
 
+def test_maize_leaves_emerge_at_the_apex_and_keep_their_order():
+    """Real maize leaves come out of the whorl at the top, each collar above the older ones', and nodes keep their
+    order as the internodes stretch. In every frame: leaf nodes in label order up the stem, the youngest one in the
+    top 40 % of it (the generator once let leaf 2 ride the whorl below leaf 1's node in the first frames)."""
+    for p in measured("maize"):
+        for xyz, parent, organ in p.skeletons:
+            dist = _root_distance(xyz, parent)
+            leaves = sorted(k for k in set(organ.tolist()) if 1 <= k <= 49)
+            at = [float(dist[_branch_node(parent, organ, k)]) for k in leaves]
+            assert all(b > a for a, b in zip(at, at[1:])), (p.seed, leaves, at)
+            assert at[-1] > 0.6 * float(dist[organ == 0].max()), (p.seed, leaves, at)
+
+
 def test_bean_side_shoots_have_trifoliate_leaves_four_layers():
     layered = 0
     for p in measured("bean"):

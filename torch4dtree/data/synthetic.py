@@ -22,7 +22,10 @@ shoot is itself an axis whose clock is its nominal length. Where an organ sits o
 (arc length from the axis base) is ``softmin(C - depth, F + drift * (C - F))``: while young it
 rides just ``depth`` below the axis apex (tomato and bean: the apical bud, a few mm; maize:
 the still-rolled whorl, 15-25 mm), after reaching its node ``F`` it stays there while the
-internodes below stretch a little (``drift``). Leaflets and lobes sit at a fixed fraction of
+internodes below stretch a little (``drift``). Maize leaves also keep their order on the stem
+(each collar above the older ones', as real collars stack up in the whorl): a young leaf sits at
+least halfway from the previous leaf's place up to the stem's tip, never above its own node, so
+the youngest leaf comes out near the top. Leaflets and lobes sit at a fixed fraction of
 their parent and grow in proportion to the parent's length beyond a threshold. All lengths
 and positions are non-decreasing in ``b``; an organ appears once it is ``min_length`` long, so
 an organ present at one frame is present at all later frames.
@@ -214,6 +217,10 @@ class _KindModel:
     droop_pow: float
     node_spacing: float  # mean skeleton node spacing (mm), as in the kind's Pheno4D files
     spur_rate: float  # spurs per 100 mm of skeleton
+    # > 0: organs on an axis keep their order (maize collars stack up in the whorl): a young organ sits at least
+    # this share of the way from the previous organ's place on the axis up to the axis tip (never above its own
+    # node: once settled, it is there); 0: no such constraint
+    stack_share: float = 0.0
 
 
 def _tomato_develop(b: float) -> float:
@@ -241,7 +248,7 @@ _MODELS = {
     "tomato": _KindModel("tomato", _tomato_develop, node_drift=0.3, tau=1.5, droop_pow=1.6, node_spacing=1.35,
                          spur_rate=0.5),
     "maize": _KindModel("maize", _maize_develop, node_drift=0.1, tau=3.0, droop_pow=2.0, node_spacing=1.15,
-                        spur_rate=0.12),
+                        spur_rate=0.12, stack_share=0.5),
     "bean": _KindModel("bean", _bean_develop, node_drift=0.25, tau=2.0, droop_pow=1.6, node_spacing=1.4,
                        spur_rate=0.3),
     # wood: internodes stop stretching once lignified (little drift), bends are stiff (low droop power)
@@ -591,6 +598,7 @@ def _state(plant: _PlantModel, b: float) -> tuple[np.ndarray, np.ndarray]:
     clock = np.zeros(n)  # axes: nominal length (mm), the clock of the organs on them
     length = np.zeros(n)
     pos = np.zeros(n)
+    previous: dict[int, int] = {}  # axis -> its last organ so far that has started growing (stack_share)
     for i, o in enumerate(plant.organs):
         if o.role == "stem":
             clock[i] = kind.develop(b)
@@ -610,6 +618,14 @@ def _state(plant: _PlantModel, b: float) -> tuple[np.ndarray, np.ndarray]:
             riding = C - o.depth  # young: just below the apex
             settled = o.node + kind.node_drift * (C - o.node)  # at its node, which the internodes below lift
             pos[i] = size * max(_softmin(riding, settled, kind.tau), 0.05 * C)
+            if kind.stack_share > 0:
+                older = previous.get(o.parent)
+                if older is not None:  # between the older organ's place and the tip, never above the own node
+                    # (a node above the older one's: the order is strict); min / max of non-decreasing terms
+                    # below the tip keep the position non-decreasing and below the tip
+                    stacked = pos[older] + kind.stack_share * (length[o.parent] - pos[older])
+                    pos[i] = max(pos[i], min(stacked, size * settled))
+                previous[o.parent] = i
     return length, pos
 
 

@@ -9,7 +9,8 @@ Runs on the ``synthetic`` source only (returns ``{}`` otherwise), per kind:
   pairs, recall over organs present in both frames; spurs ignored); the chained identities are scored by
   :func:`~torch4dtree.temporal.within.identity_accuracy` (share of all branches of all frames sitting in their
   organ's slot). The identities are scored again with ``register_sequence``'s own default ``lp`` (tuned for
-  identities) when the evaluation's differs: on synthetic maize the two differ a lot.
+  identities) when the evaluation's differs (on synthetic maize they differed a lot, 70 vs 91 % of branches in
+  their organ's slot, until the order-preserving matching of ``register_sequence``: 99.7 % at both).
 * **across plants**: the same normalised time of two plants of the kind (the same frame index when, as in
   ``torch4dtree synth`` sets, plants share their days), at about 1/3, 2/3 and the end of the sequence, one tree
   registered onto the other with a rotation about the vertical (plants grow in any azimuth; ``settings.rotation``

@@ -53,6 +53,7 @@ from .aligned import AlignedTrees, Lambdas, slot_weights, subtree_sq_norms
 from .structures import Trees
 
 __all__ = [
+    "ORDER_TOL",
     "POSITIONS",
     "TreeRegistration",
     "effective_lambdas",
@@ -181,6 +182,111 @@ def _rotate(x: Tensor, O: Tensor) -> Tensor:
     return (x.unsqueeze(-2) * O).sum(-1)
 
 
+# ----------------------------------------------------------------------------- children's matching
+
+# default tolerance of ordered matching (fraction of the parent): siblings closer than this along their parent are
+# one group, matched in any order (opposite leaves, whorls and leaflet pairs share a node: their s are equal)
+ORDER_TOL = 0.02
+
+
+def _assignment(cost: np.ndarray, null_mov: np.ndarray, null_ref: np.ndarray) -> tuple[float, list[tuple[int, int]]]:
+    """Any partial matching: one linear assignment on the augmented ``(k1 + k2) x (k2 + k1)`` matrix (SPEC §3).
+
+    ``cost (k1, k2)``: cost of matching moving child ``i`` to reference child ``j`` (``inf``: excluded);
+    ``null_mov (k1,)`` / ``null_ref (k2,)``: cost of leaving each unmatched. Returns ``(total, [(i, j), ...])``.
+    """
+    k1, k2 = cost.shape
+    C = np.full((k1 + k2, k2 + k1), np.inf)
+    C[:k1, :k2] = cost
+    C[np.arange(k1), k2 + np.arange(k1)] = null_mov
+    C[k1 + np.arange(k2), np.arange(k2)] = null_ref
+    C[k1:, k2:] = 0.0
+    rows, cols = linear_sum_assignment(C)
+    return float(C[rows, cols].sum()), [(int(i), int(j)) for i, j in zip(rows, cols) if i < k1 and j < k2]
+
+
+def _order_groups(s: np.ndarray, tol: float) -> list[list[int]]:
+    """Indices sorted by ``s``, cut into groups wherever consecutive values differ by more than ``tol``."""
+    groups: list[list[int]] = []
+    order = np.argsort(s, kind="stable").tolist()
+    for prev, i in zip([None] + order[:-1], order):
+        if prev is None or s[i] - s[prev] > tol:
+            groups.append([i])
+        else:
+            groups[-1].append(i)
+    return groups
+
+
+def _ordered_assignment(cost: np.ndarray, null_mov: np.ndarray, null_ref: np.ndarray, s_mov: np.ndarray,
+                        s_ref: np.ndarray, tol: float) -> tuple[float, list[tuple[int, int]]]:
+    """The cheapest partial matching that keeps the order of the children along their parents.
+
+    Each side's children are grouped by position (:func:`_order_groups`, ``s_mov (k1,)`` after the parent's warp,
+    ``s_ref (k2,)``). The matching is a sequence of blocks in order along both parents: one group of one side
+    against a run of consecutive groups of the other (any partial matching inside a block, :func:`_assignment`,
+    so siblings at one node may swap, and two siblings sharing a node may part into two nodes of the next
+    frame); groups outside the blocks are unmatched. Exact over that family by an edit-distance DP over the two
+    group lists (``O(g1 g2)`` cells; runs only start from groups of two or more). With singleton groups this is
+    the plain order-preserving alignment. It never crosses two pairs whose groups differ on both sides; it
+    misses only staircases (two adjacent multi-member groups each shared by two blocks). Costs as
+    :func:`_assignment`. Why: organs along a parent never pass each other as a plant grows, while the assignment
+    lets a long leaf match a similar one two nodes away and a tiny one take its place.
+    """
+    G1, G2 = _order_groups(s_mov, tol), _order_groups(s_ref, tol)
+    m1, m2 = len(G1), len(G2)
+    pair = np.minimum(cost, null_mov[:, None] + null_ref[None, :])  # one child each: matched or both null
+
+    def block(x0: int, x1: int, y0: int, y1: int) -> tuple[float, list[tuple[int, int]]]:
+        g = [i for grp in G1[x0:x1] for i in grp]
+        h = [j for grp in G2[y0:y1] for j in grp]
+        if len(g) == 1 and len(h) == 1:
+            i, j = g[0], h[0]
+            return float(pair[i, j]), [(i, j)] if cost[i, j] < null_mov[i] + null_ref[j] else []
+        c, p = _assignment(cost[np.ix_(g, h)], null_mov[g], null_ref[h])
+        return c, [(g[i], h[j]) for i, j in p]
+
+    skip1 = [float(null_mov[g].sum()) for g in G1]
+    skip2 = [float(null_ref[h].sum()) for h in G2]
+    D = np.zeros((m1 + 1, m2 + 1))
+    D[1:, 0] = np.cumsum(skip1)
+    D[0, 1:] = np.cumsum(skip2)
+    # back pointer: (groups of moving, groups of reference) consumed by the last step; (n, 0) / (0, n): skips
+    back: dict[tuple[int, int], tuple[int, int]] = {(x, 0): (1, 0) for x in range(1, m1 + 1)}
+    back.update({(0, y): (0, 1) for y in range(1, m2 + 1)})
+    for x in range(1, m1 + 1):
+        for y in range(1, m2 + 1):
+            best, how = D[x - 1, y] + skip1[x - 1], (1, 0)
+            if D[x, y - 1] + skip2[y - 1] < best:
+                best, how = D[x, y - 1] + skip2[y - 1], (0, 1)
+            runs = [(1, 1)]  # moving group x - 1 against ref groups y - r .. y - 1, or the converse
+            if len(G1[x - 1]) > 1:
+                runs += [(1, r) for r in range(2, y + 1)]
+            if len(G2[y - 1]) > 1:
+                runs += [(r, 1) for r in range(2, x + 1)]
+            for r1, r2 in runs:
+                c = D[x - r1, y - r2] + block(x - r1, x, y - r2, y)[0]
+                if c < best:
+                    best, how = c, (r1, r2)
+            D[x, y], back[(x, y)] = best, how
+    pairs: list[tuple[int, int]] = []
+    x, y = m1, m2
+    while x > 0 or y > 0:
+        r1, r2 = back[(x, y)]
+        if r1 and r2:
+            pairs += block(x - r1, x, y - r2, y)[1]
+        x, y = x - r1, y - r2
+    return float(D[m1, m2]), sorted(pairs)
+
+
+def _match_children(cost: np.ndarray, null_mov: np.ndarray, null_ref: np.ndarray, s_mov: np.ndarray,
+                    s_ref: np.ndarray, order_tol: float | None) -> tuple[float, list[tuple[int, int]]]:
+    """Children's matching of one parent pair: any (``order_tol=None``) or order-preserving (see
+    :func:`_ordered_assignment`). Returns ``(total cost, [(moving i, reference j), ...])``."""
+    if order_tol is None:
+        return _assignment(cost, null_mov, null_ref)
+    return _ordered_assignment(cost, null_mov, null_ref, s_mov, s_ref, order_tol)
+
+
 # blends tried between a parent's own warp and the warp that puts its matched children exactly on theirs
 LANDMARK_STEPS = (0.25, 0.5, 0.75, 1.0)
 # rounds of (refit the parent warp to the matched children, re-solve their assignment)
@@ -219,25 +325,31 @@ def _landmark_warp(s_ref: np.ndarray, s_now: np.ndarray, grid: np.ndarray) -> np
 
 
 def _refit_to_children(ref_q: Tensor, mov_q: Tensor, gamma: np.ndarray, s_mov: np.ndarray, s_ref: np.ndarray,
-                       C: np.ndarray, pairs: list[tuple[int, int]], total: float, lm: float, lp: float
+                       sub: np.ndarray, null_mov: np.ndarray, null_ref: np.ndarray, pairs: list[tuple[int, int]],
+                       total: float, lm: float, lp: float, order_tol: float | None
                        ) -> tuple[float, list[tuple[int, int]], float, np.ndarray, np.ndarray]:
     """Children-aware warp of one parent pair: the metric charges ``lp (gamma^{-1}(s_c) - s_e)^2`` for every
     matched child, but the DP warp is chosen on the parent curves alone (as in the paper), which leaves the
     children where a nearly straight stem happens to put them. Compose the warp with a piecewise-linear
     ``phi`` that carries each matched child onto its partner (``gamma o ((1 - a) id + a phi)``), keep the best
-    blend ``a`` by the exact node cost (parent energy + the re-solved assignment) and repeat with the new
-    matching. Never increases the node cost. ``C`` is the node's augmented cost matrix for the DP warp.
+    blend ``a`` by the exact node cost (parent energy + the re-solved matching) and repeat with the new
+    matching. Never increases the node cost. ``sub (k1, k2)`` is the subtree part of the children's matching
+    costs (``ls D``, ``inf`` where excluded), ``null_mov`` / ``null_ref`` their unmatched costs
+    (:func:`_match_children`); ``total`` and ``pairs`` the node cost and matching under ``gamma``.
 
     Returns ``(total, pairs, parent energy, gamma, children's s')``.
     """
     T = gamma.shape[0]
     grid = np.linspace(0.0, 1.0, T)
-    k1, k2 = len(s_mov), len(s_ref)
     sc = np.interp(s_mov, gamma, grid)
+
+    def matching(s_now: np.ndarray) -> tuple[float, list[tuple[int, int]]]:
+        cost = sub + lp * (s_now[:, None] - s_ref[None, :]) ** 2
+        return _match_children(cost, null_mov, null_ref, s_now, s_ref, order_tol)
+
     E0 = float(srvf_sq_norm(ref_q - warp_srvf(mov_q, torch.from_numpy(gamma).to(mov_q.dtype))))
-    rows, cols = linear_sum_assignment(C)
-    best = (lm * E0 + float(C[rows, cols].sum()), pairs, E0, gamma, sc)  # the same node cost, recomputed here
-    base_s_cost = C[:k1, :k2] - lp * (sc[:, None] - s_ref[None, :]) ** 2  # the subtree part of each entry
+    c0, _ = matching(sc)
+    best = (lm * E0 + c0, pairs, E0, gamma, sc)  # the same node cost, recomputed here
     for _ in range(LANDMARK_ROUNDS):
         _, pairs_now, _, gam_now, sc_now = best
         phi = _landmark_warp(s_ref[[j for _, j in pairs_now]], sc_now[[i for i, _ in pairs_now]], grid)
@@ -248,23 +360,21 @@ def _refit_to_children(ref_q: Tensor, mov_q: Tensor, gamma: np.ndarray, s_mov: n
         improved = False
         for g, e in zip(cands, E.tolist()):
             s_new = np.interp(s_mov, g, grid)
-            Cn = C.copy()
-            Cn[:k1, :k2] = base_s_cost + lp * (s_new[:, None] - s_ref[None, :]) ** 2
-            rn, cn = linear_sum_assignment(Cn)
-            t = lm * e + float(Cn[rn, cn].sum())
+            c, p = matching(s_new)
+            t = lm * e + c
             if t < best[0] - 1e-12 * max(1.0, abs(best[0])):
-                best = (t, [(i, j) for i, j in zip(rn, cn) if i < k1 and j < k2], e, g, s_new)
+                best = (t, p, e, g, s_new)
                 improved = True
         if not improved:
             break
     if best[3] is gamma:
-        return total, pairs, (total - float(C[rows, cols].sum())) / lm, gamma, sc  # unchanged
+        return total, pairs, (total - c0) / lm, gamma, sc  # unchanged
     return best
 
 
 def _solve(movs: Sequence[_Tree], refs: Sequence[_Tree], jobs: Sequence[tuple[int, int, Tensor]],
            lambdas: Sequence[Lambdas], dp_opts: dict, prune: bool, max_depth: int | None = None,
-           landmarks: bool = True, arclength: bool = False) -> list[_Config]:
+           landmarks: bool = True, arclength: bool = False, order_tol: float | None = None) -> list[_Config]:
     """Warps + assignments for fixed rotations. ``jobs[k] = (moving index, reference index, O (d, d))``;
     ``lambdas[m]`` are the weights of moving tree ``m`` (with ``lp_relative`` each pair has its own ``lp``; the
     DP warps do not depend on the weights, so pairs of different weights still share the batched DP calls).
@@ -272,7 +382,8 @@ def _solve(movs: Sequence[_Tree], refs: Sequence[_Tree], jobs: Sequence[tuple[in
     ``max_depth`` stops exploring pairs below that layer (their subtrees then count as unmatched): a cheap,
     approximate solve used to rank starting rotations. ``landmarks`` refits each parent's warp to its
     matched children (:func:`_refit_to_children`; not with ``arclength``, where a warp does not move children).
-    ``arclength``: children's positions compared by arc length (:func:`_child_positions`).
+    ``arclength``: children's positions compared by arc length (:func:`_child_positions`). ``order_tol``: children's
+    matching, see :func:`_match_children`.
     """
     landmarks = landmarks and not arclength
     T = movs[0].q.shape[1] + 1
@@ -326,25 +437,24 @@ def _solve(movs: Sequence[_Tree], refs: Sequence[_Tree], jobs: Sequence[tuple[in
                 total += ls * (sum(mov.norm[c] for c in ca) + sum(ref.norm[e] for e in cb))
                 assign[key] = []
             else:
-                k1, k2 = len(ca), len(cb)
-                C = np.full((k1 + k2, k2 + k1), np.inf)
+                # the children's matching costs: subtree part (inf where pruned) + position part
+                sub = np.full((len(ca), len(cb)), np.inf)
                 for i, c in enumerate(ca):
                     for j, e in enumerate(cb):
                         d_ce = D.get((k, c, e))
                         if d_ce is not None:
-                            C[i, j] = lp * (sc[i] - ref.s[e]) ** 2 + ls * d_ce
-                    C[i, k2 + i] = ls * mov.norm[c]
-                for j, e in enumerate(cb):
-                    C[k1 + j, j] = ls * ref.norm[e]
-                C[k1:, k2:] = 0.0
-                rows, cols = linear_sum_assignment(C)
-                total += float(C[rows, cols].sum())
-                pairs = [(i, j) for i, j in zip(rows, cols) if i < k1 and j < k2]
-                s_cost = lp * sum((sc[i] - ref.s[cb[j]]) ** 2 for i, j in pairs)  # the most a refit can save
+                            sub[i, j] = ls * d_ce
+                null_mov, null_ref = ls * mov.norm[ca], ls * ref.norm[cb]
+                s_ref = ref.s[cb]
+                cost, pairs = _match_children(sub + lp * (sc[:, None] - s_ref[None, :]) ** 2, null_mov, null_ref,
+                                              sc, s_ref, order_tol)
+                total += cost
+                s_cost = lp * sum((sc[i] - s_ref[j]) ** 2 for i, j in pairs)  # the most a refit can save
                 if landmarks and pairs and s_cost > LANDMARK_MIN_SHARE * total:
                     ref_q, mov_q = ref.q[b], qrot[k][a]
                     total, pairs, E, gam_ab, sc = _refit_to_children(
-                        ref_q, mov_q, info[key][1], mov.s[ca], ref.s[cb], C, pairs, total, lm, lp)
+                        ref_q, mov_q, info[key][1], mov.s[ca], s_ref, sub, null_mov, null_ref, pairs, total, lm,
+                        lp, order_tol)
                     info[key] = (E, gam_ab, sc)
                 assign[key] = [(ca[i], cb[j]) for i, j in pairs]
             D[key] = total
@@ -403,11 +513,11 @@ def _initial_rotations(mov: _Tree, ref: _Tree, rotation: str, up: Tensor, n_star
 
 
 def _rank_starts(movs: Sequence[_Tree], ref: _Tree, jobs: list[tuple[int, int, Tensor]], lambdas: Sequence[Lambdas],
-                 dp_opts: dict, prune: bool, rotation: str, up: Tensor, arclength: bool = False
-                 ) -> list[tuple[int, int, Tensor]]:
+                 dp_opts: dict, prune: bool, rotation: str, up: Tensor, arclength: bool = False,
+                 order_tol: float | None = None) -> list[tuple[int, int, Tensor]]:
     """The ``KEEP_STARTS`` best starting rotations of each pair, ranked on the top two layers only
     (one rotation update each): the full recursion then runs for those alone."""
-    configs = _solve(movs, [ref], jobs, lambdas, dp_opts, prune, max_depth=1, arclength=arclength)
+    configs = _solve(movs, [ref], jobs, lambdas, dp_opts, prune, max_depth=1, arclength=arclength, order_tol=order_tol)
     scored = []
     for (m, r, _), cfg in zip(jobs, configs):
         O_new, e_new = _rotation_update(movs[m], ref, cfg, lambdas[m], rotation, up)
@@ -545,7 +655,8 @@ def register_to_reference(trees: Trees, reference: Trees, lambdas: Sequence[floa
                           rotation: str = "none", up: Sequence[float] | Tensor | None = None, n_starts: int = 12,
                           max_iters: int = 10, tol: float = 1e-3, neighbourhood: int = 4, band: int | None = None,
                           coarse: int | None = 32, refine: int = 0, prune: bool = True,
-                          lp_relative: bool = True, positions: str = "warped") -> list[TreeRegistration]:
+                          lp_relative: bool = True, positions: str = "warped", order_tol: float | None = None
+                          ) -> list[TreeRegistration]:
     """Register every tree of ``trees`` (moving) onto the single tree ``reference``, all at once.
 
     Args:
@@ -586,6 +697,12 @@ def register_to_reference(trees: Trees, reference: Trees, lambdas: Sequence[floa
             otherwise register one trifoliate node shifted and turned by 180 degrees, at a lower distance than
             the true correspondence. Not symmetric in the pair (the reference parent's length is the unit);
             the moving tree's ``s`` in ``aligned`` are then on the reference's scale.
+        order_tol: ``None`` (default, SPEC §3): the side subtrees of each node are matched by one linear assignment,
+            any permutation. A number (e.g. :data:`ORDER_TOL`): order-preserving matching, for frames of one
+            growing plant, whose organs never pass each other along a parent: the matched children keep their
+            order along the parent (positions ``s`` after the parent's warp), except that siblings within
+            ``order_tol`` of each other (one node: opposite leaves, whorls, leaflet pairs) may match in any order
+            (:func:`_ordered_assignment`). Null partners are allowed either way.
 
     Returns:
         One :class:`TreeRegistration` per moving tree. Every depth of every registration (and every
@@ -596,6 +713,8 @@ def register_to_reference(trees: Trees, reference: Trees, lambdas: Sequence[floa
     if positions not in POSITIONS:
         raise ValueError(f"unknown positions {positions!r}; expected one of {POSITIONS}")
     arc = positions == "arclength"
+    if order_tol is not None and not (math.isfinite(order_tol) and order_tol >= 0):
+        raise ValueError(f"order_tol must be None or a finite number >= 0, got {order_tol}")
     if reference.num_trees != 1:
         raise ValueError(f"reference must be a single tree, got {reference.num_trees}")
     if trees.dim != reference.dim:
@@ -617,9 +736,9 @@ def register_to_reference(trees: Trees, reference: Trees, lambdas: Sequence[floa
             if reference.T > RANK_T:  # ranking only compares starts: coarser curves do (DP cost ~ T^2)
                 coarse = [_prepare(t, lt, arc) for t, lt in zip(trees.resample(RANK_T).split(), lams)]
                 jobs = _rank_starts(coarse, _prepare(reference.resample(RANK_T), lam, arc), jobs, lams, dp_opts, prune,
-                                    rotation, up_t, arc)
+                                    rotation, up_t, arc, order_tol)
             else:
-                jobs = _rank_starts(movs, ref, jobs, lams, dp_opts, prune, rotation, up_t, arc)
+                jobs = _rank_starts(movs, ref, jobs, lams, dp_opts, prune, rotation, up_t, arc, order_tol)
             # the identity always runs in full, so a rotation search never ends worse than rotation="none"
             # (ranking on the top layers could drop it: vertical was worse than none on 3 of 102 Pheno4D pairs)
             eye = torch.eye(reference.dim, dtype=torch.float64)
@@ -627,7 +746,7 @@ def register_to_reference(trees: Trees, reference: Trees, lambdas: Sequence[floa
             jobs += [(m, 0, eye) for m in range(len(movs)) if m not in kept_identity]
         last = [math.inf] * len(jobs)
         for _ in range(max(max_iters, 1)):
-            configs = _solve(movs, [ref], jobs, lams, dp_opts, prune, arclength=arc)
+            configs = _solve(movs, [ref], jobs, lams, dp_opts, prune, arclength=arc, order_tol=order_tol)
             nxt, nlast = [], []
             for (m, _, _), cfg, prev in zip(jobs, configs, last):
                 cur = best[m]
