@@ -96,15 +96,23 @@ def test_spatial_stage_keeps_the_smallest_candidate():
     assert r.kept_index_order == (r.spatial_candidate == "index_order")
 
 
-def test_spatial_stage_lowers_the_real_pair_where_the_found_warps_misfit():
-    """Pheno4D tom_2 / tom_5 (.mat): the registration as found gives a larger 4D distance than index order (its
-    warps, fitted to each branch's latest shape, misfit the younger frames); its correspondence with identity
-    warps lowers the distance, so the spatial stage does too."""
+def test_spatial_stage_lowers_real_pairs_where_the_first_registration_does_not():
+    """Pheno4D maize (.mat, T = 64). maize01 / maize03: the registration's warps, fitted to each branch's latest
+    shape, misfit the younger frames; its correspondence with identity warps is the smallest 4D distance.
+    maize02 / maize03: neither candidate of rotation="none" beats index order (the stage would end equal); the
+    fallback vertical rotation search lowers it."""
     from torch4dtree.io import LoadOptions, read_sequence
+    from torch4dtree.temporal import register_sequence
 
     opts = LoadOptions(T=64, dtype=torch.float64)
-    a, b = (read_sequence(pheno4d("mat", name), opts).sequence for name in ("tom_2_seq", "tom_5_seq"))
-    r = register4d(a, b)
-    assert r.distance_after_spatial < r.distance_before - 1e-3
+    seqs = {n: register_sequence(read_sequence(pheno4d("mat", f"maize0{n}_seq"), opts).sequence) for n in (1, 2, 3)}
+    r = register4d(seqs[1], seqs[3])
     assert r.spatial_candidate == "correspondence"
+    assert r.distance_after_spatial < r.distance_before - 1e-3
+    plain = register4d(seqs[2], seqs[3], fallback_rotation=None)
+    assert plain.spatial_candidate == "index_order" and plain.kept_index_order
+    assert plain.distance_after_spatial == pytest.approx(plain.distance_before, rel=1e-9)
+    r = register4d(seqs[2], seqs[3])
+    assert r.spatial_candidate.endswith("_vertical")
+    assert r.distance_after_spatial < r.distance_before - 1e-3
     assert r.distance_after_temporal <= r.distance_after_spatial
