@@ -310,7 +310,8 @@ def register4d(reference: TreeSequence | AlignedSequence, moving: TreeSequence |
     seconds["within_sequence"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     rep_a, rep_b = representative_tree(A), representative_tree(B)
-    reg = register_trees(rep_b, rep_a, lam, rotation, lp_relative=False, **registration_kwargs)
+    # one way (symmetric=False), as the weights are A's: B's representative onto A's
+    reg = register_trees(rep_b, rep_a, lam, rotation, lp_relative=False, symmetric=False, **registration_kwargs)
     after = combine_sequences(A, B, reg.matches, reg.gamma.to(torch.float64), reg.rotation.to(torch.float64), lam)
     ident = torch.linspace(0, 1, rep_b.T, dtype=torch.float64).expand(rep_b.points.shape[0], -1)
     before = combine_sequences(A, B, index_order_matches(rep_b, rep_a), ident, torch.eye(rep_b.dim,
