@@ -239,16 +239,18 @@ def _refit_to_children(ref_q: Tensor, mov_q: Tensor, gamma: np.ndarray, s_mov: n
 
 def _solve(movs: Sequence[_Tree], refs: Sequence[_Tree], jobs: Sequence[tuple[int, int, Tensor]],
            lambdas: Sequence[Lambdas], dp_opts: dict, prune: bool, max_depth: int | None = None,
-           landmarks: bool = True) -> list[_Config]:
+           landmarks: bool = True, fixed: Sequence[dict[int, int]] | None = None) -> list[_Config]:
     """Warps + assignments for fixed rotations. ``jobs[k] = (moving index, reference index, O (d, d))``;
     ``lambdas[m]`` are the weights of moving tree ``m`` (with ``lp_relative`` each pair has its own ``lp``; the
     DP warps do not depend on the weights, so pairs of different weights still share the batched DP calls).
 
     ``max_depth`` stops exploring pairs below that layer (their subtrees then count as unmatched): a cheap,
     approximate solve used to rank starting rotations. ``landmarks`` refits each parent's warp to its
-    matched children (:func:`_refit_to_children`).
+    matched children (:func:`_refit_to_children`). ``fixed[k]`` (moving -> reference branch): job ``k`` keeps
+    exactly these matches (the warps are solved for them; pass ``prune=False``, as a fixed pair must be explored).
     """
     T = movs[0].q.shape[1] + 1
+    fixed_ref = None if fixed is None else [set(f.values()) for f in fixed]
     grid = np.linspace(0.0, 1.0, T)
     qrot = [_rotate(movs[m].q, O) for m, _, O in jobs]
     # top-down: candidate pairs per depth, one batched DP per depth
@@ -275,6 +277,8 @@ def _solve(movs: Sequence[_Tree], refs: Sequence[_Tree], jobs: Sequence[tuple[in
                 continue
             for c, s_c in zip(ca, sc):
                 for e in cb:
+                    if fixed is not None and fixed[k].get(c) != e:
+                        continue
                     if prune:
                         lb = lp * (s_c - ref.s[e]) ** 2 + ls * lm * (mov.sqrt_len[c] - ref.sqrt_len[e]) ** 2
                         if lb >= ls * (mov.norm[c] + ref.norm[e]):
@@ -309,6 +313,13 @@ def _solve(movs: Sequence[_Tree], refs: Sequence[_Tree], jobs: Sequence[tuple[in
                     C[i, k2 + i] = ls * mov.norm[c]
                 for j, e in enumerate(cb):
                     C[k1 + j, j] = ls * ref.norm[e]
+                if fixed is not None:  # a fixed pair has no null option
+                    for i, c in enumerate(ca):
+                        if c in fixed[k]:
+                            C[i, k2 + i] = np.inf
+                    for j, e in enumerate(cb):
+                        if e in fixed_ref[k]:  # type: ignore[index]
+                            C[k1 + j, j] = np.inf
                 C[k1:, k2:] = 0.0
                 rows, cols = linear_sum_assignment(C)
                 total += float(C[rows, cols].sum())
@@ -392,6 +403,10 @@ def _rank_starts(movs: Sequence[_Tree], refs: Sequence[_Tree], jobs: list[tuple[
             kept[m] = kept.get(m, 0) + 1
             out.append((m, r, O))
     return out
+
+
+# solve the warps of an inverted symmetric registration again in the requested direction (same matches)
+REWARP_INVERTED = False
 
 
 def _size_key(tree: _Tree) -> tuple[float, int, bytes]:
@@ -660,14 +675,28 @@ def register_to_reference(trees: Trees, reference: Trees, lambdas: Sequence[floa
             if not nxt:
                 break
             jobs, last = nxt, nlast
+    # where the reference was registered onto a tree: the inverse correspondence, warps and rotation; with
+    # REWARP_INVERTED the warps are solved again in the requested direction for the same matches
+    inverse = {m: _inverse_config(cfg, len(movs[m].parent)) for m, cfg in enumerate(best) if flip[m] and cfg}
+    rewarped: dict[int, _Config] = {}
+    if inverse and REWARP_INVERTED:
+        ms = list(inverse)
+        with torch.no_grad():
+            redo = _solve([movs[m] for m in ms], [ref], [(i, 0, inverse[m].O) for i, m in enumerate(ms)],
+                          [lams[m] for m in ms], dp_opts, False, fixed=[inverse[m].match for m in ms])
+        rewarped = {m: c for m, c in zip(ms, redo) if c.match == inverse[m].match}
     out = []
     eye = torch.eye(reference.dim, dtype=torch.float64)
-    for mov, cfg, lam_m, f in zip(movs, best, lams, flip):
+    for m, (mov, cfg, lam_m) in enumerate(zip(movs, best, lams)):
         assert cfg is not None
-        if f:  # the reference was registered onto this tree: the inverse correspondence, warps and rotation
-            cfg = _inverse_config(cfg, len(mov.parent))
+        cfg = inverse.get(m, cfg)
         aligned = _build_aligned(mov, ref, cfg.match, cfg.gamma, cfg.O, lam_m)
         dist = _pair_distance(aligned)
+        if m in rewarped and rewarped[m].energy < float(dist) ** 2:
+            al2 = _build_aligned(mov, ref, rewarped[m].match, rewarped[m].gamma, rewarped[m].O, lam_m)
+            d2 = _pair_distance(al2)
+            if d2 < dist:
+                cfg, aligned, dist = rewarped[m], al2, d2
         ident = np.tile(np.linspace(0.0, 1.0, reference.T), (len(mov.parent), 1))
         base_match = _index_order_match(mov, ref)
         base = _build_aligned(mov, ref, base_match, ident, eye, lam_m)
