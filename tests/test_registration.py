@@ -261,14 +261,14 @@ def test_symmetric_registration_does_not_depend_on_argument_order(rotation):
 def test_rewarped_inverse_keeps_matches_and_lowers_the_distance(monkeypatch):
     """REWARP_INVERTED (off by default): the inverted direction's warps solved again for the same matches. Never
     above the pure inverse; on these pairs (the one-way solve finds the same matches) it is the one-way distance,
-    which the pure inverse exceeds by 0.01-0.06 % (the inverted warps and the position term are not symmetric)."""
+    which the pure inverse exceeds by 0.05-0.12 % (the inverted warps and the position term are not symmetric)."""
     import torch4dtree.trees.registration as reg
 
-    for seed in (1, 3):
+    for seed in (0, 1):
         rng = np.random.default_rng(seed)
         A, B = random_tree(rng), random_tree(rng)
-        if float(A.branch_lengths().sum()) > float(B.branch_lengths().sum()):
-            A, B = B, A  # B is the larger: A onto B is the inverted direction
+        if float(A.branch_lengths().sum()) < float(B.branch_lengths().sum()):
+            A, B = B, A  # A is the larger: A onto B is the inverted direction
         one_way = float(register_trees(A, B, symmetric=False).distance)
         inv = register_trees(A, B)
         monkeypatch.setattr(reg, "REWARP_INVERTED", True)
