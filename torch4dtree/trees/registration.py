@@ -31,6 +31,12 @@ The rotation alternates with the recursion (weighted Kabsch / rotation about ``u
 branch pairs) until the energy stops decreasing; several starting rotations are tried. The result
 is never worse than the index-order solution (children matched by order of ``s``, identity warps
 and rotation), which is a valid candidate and is kept when it is better.
+
+Symmetry (default ``symmetric=True``): the solver above is not symmetric (the DP warps the moving branch on the
+reference's grid, the position term is measured after the moving tree's warp, children refits and rotation starts
+act on the moving tree), so ``A -> B`` and ``B -> A`` used to pick different near-tied leaflets and different warps
+of weakly determined branches. Each pair is now solved in one canonical direction (smaller tree onto larger) and
+the other direction returns its inverse.
 """
 
 from __future__ import annotations
@@ -406,10 +412,10 @@ def _rank_starts(movs: Sequence[_Tree], refs: Sequence[_Tree], jobs: list[tuple[
 
 
 # solve the warps of an inverted symmetric registration again in the requested direction, for the same matches.
-# Off: it brings that direction's distance back to a one-way solve's (Pheno4D .mat T = 64, 13.132 one-way, 13.133
-# rewarped, 13.219 inverted) but the warps are then no longer inverse to each other, and .mat cycle consistency at
-# T = 256 is 0.32 / 0.46 / 0.91 / 2.82 % (mapped) instead of 0.00 %: weakly determined warps of straight leaflets
-# resolve differently each way (the old 0.62 / 0.75 / 1.20 / 3.11 % was about half these, half the matches).
+# Off: it brings that direction's distance back to a one-way solve's (Pheno4D .mat T = 64, day k + 1 onto k: 13.089
+# one-way, 13.090 rewarped, 13.181 inverted) but the warps are then no longer inverse to each other, and .mat cycle
+# consistency at T = 256 is 0.27 / 0.40 / 0.85 / 2.76 % (mapped) instead of 0.00 %: weakly determined warps of
+# straight leaflets resolve differently each way (the old 0.62 / 0.75 / 1.20 / 3.11 % also had the matches).
 REWARP_INVERTED = False
 # the canonical direction of a symmetric registration (see _solve_reversed)
 SOLVE_LARGER_ONTO_SMALLER = False
