@@ -612,8 +612,8 @@ def register_to_reference(trees: Trees, reference: Trees, lambdas: Sequence[floa
             inverted direction the distance is that of the inverted solution (0.3-0.7 % above a one-way solve
             on average on Pheno4D, see :func:`_solve_reversed`; ``REWARP_INVERTED``). ``False``: solve the given
             direction (one-way uses: chaining a sequence with a weight from one frame, comparing candidates
-            by their distances onto one tree). Symmetric for trees of equal ``T`` (others are resampled to
-            the reference's).
+            by their distances onto one tree, aligning trees onto a mean or a layout). Symmetric for trees of
+            equal ``T`` (others are resampled to the reference's).
 
     Returns:
         One :class:`TreeRegistration` per moving tree. Every depth of every registration (and every
