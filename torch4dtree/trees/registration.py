@@ -719,7 +719,9 @@ def register_to_reference(trees: Trees, reference: Trees, lambdas: Sequence[floa
         base = _build_aligned(mov, ref, base_match, ident, eye, lam_m)
         dist_before = _pair_distance(base)
         used_base = bool(dist_before < dist)
-        if used_base:  # the index-order solution is a valid candidate: never return worse
+        # the index-order solution is a valid candidate: never return worse (kept over an inverted solution too,
+        # the one place a symmetric registration can differ between the two argument orders)
+        if used_base:
             cfg = _Config(float(dist_before) ** 2, base_match, ident, eye)
             aligned, dist = base, dist_before
         matches = sorted(cfg.match.items())
