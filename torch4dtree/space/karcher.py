@@ -449,8 +449,9 @@ class KarcherMean(FittedModule):
                                 torch.tensor(dropped_sq, dtype=torch.float64).to(**like))
 
     def _register(self, trees: Trees, mean: _Mean) -> list[_Registered]:
+        # one way (symmetric=False): the trees are aligned onto the mean; an inverted solution would only fit worse
         regs = register_to_reference(trees, _decode(mean), self.lambdas, self.rotation, lp_relative=False,
-                                     **self.registration)
+                                     symmetric=False, **self.registration)
         return [_registered(r) for r in regs]
 
     def _initial_mean(self, trees: Trees) -> tuple[_Mean, list[_Registered] | None]:

@@ -222,7 +222,9 @@ class Population(FittedModule):
         from tqdm.auto import tqdm
 
         for c in tqdm(cands, disable=not progress, desc="choosing the reference", unit="candidate"):
-            regs = register_to_reference(batch, reps[c], lam, self.rotation, lp_relative=False, **self.registration)
+            # one way, as every use of a layout's registrations below (symmetric=False: no inverted solutions)
+            regs = register_to_reference(batch, reps[c], lam, self.rotation, lp_relative=False, symmetric=False,
+                                         **self.registration)
             energy = sum(float(r.distance) ** 2 for r in regs)
             if best is None or (energy, names[c]) < best[:2]:
                 best = (energy, names[c], c, regs)
@@ -247,7 +249,7 @@ class Population(FittedModule):
         for i in tqdm(movs, disable=not progress, desc="union layout", unit="plant"):
             if union.points.shape[0] > reps[ref].points.shape[0]:
                 regs[i] = register_to_reference(reps[i], union, lam, self.rotation, lp_relative=False,
-                                                **self.registration)[0]
+                                                symmetric=False, **self.registration)[0]
             gamma, rot = regs[i].gamma.to(torch.float64), regs[i].rotation.to(torch.float64)
             targets = open_slots(aseqs[i], regs[i].matches, slot_parent, slot_depth)
             union = grow_union(union, aseqs[i], targets, slot_parent, gamma, rot)
@@ -276,7 +278,7 @@ class Population(FittedModule):
             aligned = register_sequence(seq, **self.registration)  # as in fit
         rep = representative_tree(aligned)
         ref = self.reference_tree()
-        reg = register_to_reference(rep, ref, self.lambdas_, self.rotation, lp_relative=False,
+        reg = register_to_reference(rep, ref, self.lambdas_, self.rotation, lp_relative=False, symmetric=False,
                                     **self.registration)[0]
         S_r = ref.points.shape[0]
         matched = dict(reg.matches)

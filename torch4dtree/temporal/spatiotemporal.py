@@ -371,7 +371,8 @@ def register4d(reference: TreeSequence | AlignedSequence, moving: TreeSequence |
     for k, rot in enumerate(searches):
         if k and min(c[3] for c in candidates[1:]) < candidates[0][3]:
             break  # the fallback search only runs where the first did not beat index order
-        reg = register_trees(rep_b, rep_a, lam, rot, lp_relative=False, **registration_kwargs)
+        # one way (symmetric=False), as the weights are A's: B's representative onto A's
+        reg = register_trees(rep_b, rep_a, lam, rot, lp_relative=False, symmetric=False, **registration_kwargs)
         R = reg.rotation.to(torch.float64)
         suffix = "" if k == 0 else f"_{rot}"
         candidates += [(f"registered{suffix}", list(reg.matches), *score(reg.matches, reg.gamma.to(torch.float64), R)),

@@ -114,9 +114,10 @@ def consistent_frames(skeletons: Sequence[tuple[np.ndarray, np.ndarray, np.ndarr
         candidates = [build(j, p, screen_T, max_layers=SCREEN_LAYERS) for p in paths]
         pick = 0
         if len(candidates) > 1:
-            # one metric for all candidates (lp relative to the reference alone): their main branches differ in length
+            # one metric for all candidates (lp relative to the reference alone): their main branches differ in length;
+            # all solved one way (a symmetric solve would invert some of them: distances not comparable to 0.2-1 %)
             regs = register_to_reference(Trees.cat(candidates), coarse, effective_lambdas(lambdas, coarse), rotation,
-                                         lp_relative=False)
+                                         lp_relative=False, symmetric=False)
             d = np.array([float(r.distance) for r in regs])
             best = int(np.argmin(d[1:])) + 1
             pick = best if d[best] < margin * d[0] else 0  # the rule's own path (first) unless clearly worse
