@@ -225,6 +225,15 @@ def _order_groups(s: np.ndarray, tol: float) -> list[list[int]]:
     return groups
 
 
+def _never_crosses(pairs: list[tuple[int, int]], G1: list[list[int]], G2: list[list[int]]) -> bool:
+    """Whether no two pairs of a matching sit in opposite group orders on the two sides (siblings within one group
+    may cross): the order-preservation :func:`_ordered_assignment` stands for."""
+    group1 = {i: g for g, grp in enumerate(G1) for i in grp}
+    group2 = {j: g for g, grp in enumerate(G2) for j in grp}
+    links = sorted((group1[i], group2[j]) for i, j in pairs)
+    return all(a2 <= b2 for (_, a2), (_, b2) in zip(links, links[1:]))
+
+
 def _ordered_assignment(cost: np.ndarray, null_mov: np.ndarray, null_ref: np.ndarray, s_mov: np.ndarray,
                         s_ref: np.ndarray, tol: float) -> tuple[float, list[tuple[int, int]]]:
     """The cheapest partial matching that keeps the order of the children along their parents.
@@ -236,12 +245,18 @@ def _ordered_assignment(cost: np.ndarray, null_mov: np.ndarray, null_ref: np.nda
     frame); groups outside the blocks are unmatched. Exact over that family by an edit-distance DP over the two
     group lists (``O(g1 g2)`` cells; runs only start from groups of two or more). With singleton groups this is
     the plain order-preserving alignment. It never crosses two pairs whose groups differ on both sides; it
-    misses only staircases (two adjacent multi-member groups each shared by two blocks). Costs as
+    misses only staircases (two adjacent multi-member groups each shared by two blocks), unless the unconstrained
+    assignment, tried first, is one (any assignment that crosses no groups is returned as it is). Costs as
     :func:`_assignment`. Why: organs along a parent never pass each other as a plant grows, while the assignment
     lets a long leaf match a similar one two nodes away and a tiny one take its place.
     """
     G1, G2 = _order_groups(s_mov, tol), _order_groups(s_ref, tol)
     m1, m2 = len(G1), len(G2)
+    # the unconstrained optimum is a lower bound; where it never crosses it is the answer (the usual case between
+    # consecutive frames, and inside the children refits that call this many times), staircases included
+    free_cost, free_pairs = _assignment(cost, null_mov, null_ref)
+    if _never_crosses(free_pairs, G1, G2):
+        return free_cost, free_pairs
     pair = np.minimum(cost, null_mov[:, None] + null_ref[None, :])  # one child each: matched or both null
 
     def block(x0: int, x1: int, y0: int, y1: int) -> tuple[float, list[tuple[int, int]]]:
