@@ -232,7 +232,8 @@ def _growth_warp(a: Plant4D, b: Plant4D, al_a: Any, al_b: Any, settings: EvalSet
     true = true_warp(a, b, grid)
     # the slot correspondence the 4D registration kept (matches are (B slot, A slot)) against the organs
     slots = identity_scores(reg.matches, _slot_labels(b, al_b), _slot_labels(a, al_a))
-    return {"slot_identity": slots, "spatial_candidate": reg.spatial_candidate,"reference": a.name, "moving": b.name, "warp_mae": warp_mae(reg.warp, true),
+    return {"slot_identity": slots, "spatial_candidate": reg.spatial_candidate,
+            "reference": a.name, "moving": b.name, "warp_mae": warp_mae(reg.warp, true),
             "oracle_mae": warp_mae(_oracle_warp(a, b, settings), true), "identity_mae": warp_mae(grid, true),
             "distance_before": reg.distance_before, "distance_spatial": reg.distance_after_spatial,
             "distance_temporal": reg.distance_after_temporal, "kept_index_order": bool(reg.kept_index_order)}
