@@ -72,8 +72,11 @@ def test_register4d_cross_registration_uses_the_setting(plants, monkeypatch):
     assert r.cross_registration["positions"] == "arclength"
     default = register4d(plants[0], plants[1], n_t=4)
     assert default.cross_registration["positions"] == spatiotemporal_module.CROSS_POSITIONS
-    if spatiotemporal_module.CROSS_LP is None:
-        assert r.cross_registration["lambdas"][2] == pytest.approx(60.0 * default.cross_registration["lambdas"][2])
+    # lp relative to the same length: the effective lp scales with cross_lp (None: the space's lp = 1)
+    assert r.cross_registration["lambdas"][2] == pytest.approx(
+        60.0 / (spatiotemporal_module.CROSS_LP or 1.0) * default.cross_registration["lambdas"][2])
+    space = register4d(plants[0], plants[1], n_t=4, cross_lp=None)
+    assert r.cross_registration["lambdas"][2] == pytest.approx(60.0 * space.cross_registration["lambdas"][2])
     with pytest.raises(ValueError, match="positions"):
         register4d(plants[0], plants[1], n_t=4, positions="fraction")
     with pytest.raises(ValueError, match="cross_lp"):

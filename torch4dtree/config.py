@@ -20,7 +20,7 @@ HIERARCHIES = ("straightest", "heaviest", "longest")
 # = trees.registration.POSITIONS and temporal.spatiotemporal.CROSS_POSITIONS / CROSS_LP (literal, tested)
 POSITIONS = ("warped", "arclength")
 CROSS_POSITIONS = "warped"
-CROSS_LP: float | None = None
+CROSS_LP: float | None = 10.0
 # = trees.structures.DEFAULT_T (kept literal so that importing this module never imports torch; tested)
 DEFAULT_T = 64
 

@@ -19,6 +19,18 @@ from .options import UsageError, int_at_least
 SECTION_NAMES = ("spatial", "temporal", "generative", "truth", "robustness")
 
 
+def _lp_or_none(text: str) -> float | None:
+    if text.lower() == "none":
+        return None
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number >= 0 or 'none', got {text!r}") from None
+    if not 0 <= value < float("inf"):
+        raise argparse.ArgumentTypeError(f"expected a number >= 0 or 'none', got {text!r}")
+    return value
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("data", help="a Pheno4D-style folder (mat/ and/or swc/ inside), a synthetic dataset folder or any "
                                 "dataset folder (one sequence folder per plant)")
@@ -36,8 +48,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="common time samples of the trajectories (default: %(default)s)")
     p.add_argument("--cross-positions", choices=POSITIONS, default=CROSS_POSITIONS,
                    help="children's positions in the cross-sequence registrations (default: %(default)s)")
-    p.add_argument("--cross-lp", type=float, default=CROSS_LP, metavar="LP",
-                   help="relative lp of the cross-sequence registrations (default: the evaluation's lambdas)")
+    p.add_argument("--cross-lp", type=_lp_or_none, default=CROSS_LP, metavar="LP",
+                   help="relative lp of the cross-sequence registrations; 'none': the evaluation's lambdas "
+                        "(default: %(default)s)")
     p.add_argument("--seed", type=int, default=0, help="seed of every random choice (default: %(default)s)")
     p.add_argument("--no-figures", action="store_true", help="skip the rendered figures")
     p.add_argument("--overwrite", action="store_true", help="replace an earlier report in --out")
