@@ -18,7 +18,9 @@
    (:func:`grow_union`). So a branch the reference lacks opens one slot that later plants can share (issue 13:
    matching every plant onto the reference alone opened a slot per plant for it; 6 synthetic tomato plants,
    ``synthetic_dataset("tomato", plants=6, seed=0, n_frames=8, T=32)``: 212 -> 164 slots, Pheno4D tomato ``.mat``
-   at T = 64: 227 -> 178). Until a slot is opened, the batched registrations onto the reference are reused; the
+   at T = 64: 227 -> 178). These registrations use the cross-sequence settings ``positions`` / ``cross_lp``
+   (default warped, lp 10 relative: :data:`~torch4dtree.temporal.spatiotemporal.CROSS_LP`); the layout keeps the
+   space's metric. Until a slot is opened, the batched registrations onto the reference are reused; the
    later ones are one call per plant (cross-sequence time there 6.4 -> 9.6 s, Pheno4D 14 -> 20 s);
 4. a :class:`TreePCA` on all frames, and each 4D tree's **trajectory** ``(n_t, k)`` on the normalised time grid
    ``linspace(0, 1, n_t)`` between its first and last frame (its ``time_spans`` give data units back).

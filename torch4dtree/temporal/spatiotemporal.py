@@ -5,7 +5,8 @@ The pipeline, for 4D trees ``A`` (reference) and ``B`` (moving):
 1. **Within-sequence registration** (:func:`register_sequence`): each 4D tree's frames in one slot layout, a slot
    being one branch identity over the whole sequence.
 2. **Cross-sequence spatial registration**: ``B``'s representative tree (every slot's branch from the latest
-   frame holding it, in the sequence's own parameterisation) is registered onto ``A``'s. The correspondence,
+   frame holding it, in the sequence's own parameterisation) is registered onto ``A``'s (with the cross-sequence
+   settings ``positions`` / ``cross_lp``, :data:`CROSS_POSITIONS` / :data:`CROSS_LP`). The correspondence,
    warps and rotation found are applied to *every* frame of ``B``, so identities stay consistent over time; both
    4D trees are written into one union layout (``A``'s slots, then ``B``'s unmatched ones). The correspondence
    and warps are chosen on one tree while the 4D distance runs over all times, so three candidates are scored
