@@ -82,7 +82,10 @@ def test_spatial_stage_keeps_the_smallest_candidate():
     A, B = r.sequences
     rep_a, rep_b = representative_tree(A), representative_tree(B)
     lam = effective_lambdas((1.0, 1.0, 1.0), a.frames[len(a) - 1])
-    reg = register_trees(rep_b, rep_a, lam, "none", lp_relative=False, symmetric=False)
+    # the registration's own weights and positions (cross_lp, positions), the layout's metric lam
+    cross = r.cross_registration
+    reg = register_trees(rep_b, rep_a, cross["lambdas"], "none", lp_relative=False, positions=cross["positions"],
+                         symmetric=False)
     ident = torch.linspace(0, 1, rep_b.T, dtype=torch.float64).expand(rep_b.points.shape[0], -1)
     eye = torch.eye(3, dtype=torch.float64)
     dists = {}
@@ -99,8 +102,9 @@ def test_spatial_stage_keeps_the_smallest_candidate():
 def test_spatial_stage_lowers_real_pairs_where_the_first_registration_does_not():
     """Pheno4D maize (.mat, T = 64). maize01 / maize03: the registration's warps, fitted to each branch's latest
     shape, misfit the younger frames; its correspondence with identity warps is the smallest 4D distance.
-    maize02 / maize03: neither candidate of rotation="none" beats index order (the stage would end equal); the
-    fallback vertical rotation search lowers it."""
+    maize02 / maize03 with the space's own lp in the cross registration (cross_lp=None): neither candidate of
+    rotation="none" beats index order (the stage would end equal); the fallback vertical rotation search lowers it.
+    With the default cross_lp (10) rotation="none" lowers it already."""
     from torch4dtree.io import LoadOptions, read_sequence
     from torch4dtree.temporal import register_sequence
 
@@ -109,10 +113,12 @@ def test_spatial_stage_lowers_real_pairs_where_the_first_registration_does_not()
     r = register4d(seqs[1], seqs[3])
     assert r.spatial_candidate == "correspondence"
     assert r.distance_after_spatial < r.distance_before - 1e-3
-    plain = register4d(seqs[2], seqs[3], fallback_rotation=None)
+    plain = register4d(seqs[2], seqs[3], fallback_rotation=None, cross_lp=None)
     assert plain.spatial_candidate == "index_order" and plain.kept_index_order
     assert plain.distance_after_spatial == pytest.approx(plain.distance_before, rel=1e-9)
-    r = register4d(seqs[2], seqs[3])
+    r = register4d(seqs[2], seqs[3], cross_lp=None)
     assert r.spatial_candidate.endswith("_vertical")
     assert r.distance_after_spatial < r.distance_before - 1e-3
     assert r.distance_after_temporal <= r.distance_after_spatial
+    r = register4d(seqs[2], seqs[3], fallback_rotation=None)
+    assert r.spatial_candidate != "index_order" and r.distance_after_spatial < r.distance_before - 1e-3

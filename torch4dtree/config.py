@@ -17,6 +17,10 @@ ROTATIONS = ("none", "vertical", "so3")
 LOAD_SETTINGS = ("T", "max_layers", "min_branch_length", "repair", "hierarchy", "joint_hierarchy")
 # = trees.skeleton.HIERARCHIES (literal for the same reason as DEFAULT_T; tested)
 HIERARCHIES = ("straightest", "heaviest", "longest")
+# = trees.registration.POSITIONS and temporal.spatiotemporal.CROSS_POSITIONS / CROSS_LP (literal, tested)
+POSITIONS = ("warped", "arclength")
+CROSS_POSITIONS = "warped"
+CROSS_LP: float | None = 10.0
 # = trees.structures.DEFAULT_T (kept literal so that importing this module never imports torch; tested)
 DEFAULT_T = 64
 
@@ -42,6 +46,10 @@ class Config:
     rotation: str = "none"
     lambdas: tuple[float, float, float] = (1.0, 1.0, 1.0)  # (lm, ls, lp)
     neighbourhood: int = 4  # DP slopes up to 4: fastest and most cycle-consistent on Pheno4D at T = 64
+    # cross-sequence registrations (register4d, the model's population): children's positions and relative lp
+    # (null: lambdas[2]); within a sequence, register_sequence keeps its own (temporal.spatiotemporal.CROSS_*)
+    cross_positions: str = CROSS_POSITIONS
+    cross_lp: float | None = CROSS_LP
     # the generative model (SPEC §5; torch4dtree.model.FourDTreeModel)
     n_t: int = 32  # common time samples of the trajectories
     tree_components: int | None = None  # tree-PCA components (None: the share tree_variance)
@@ -64,6 +72,13 @@ class Config:
         self.lambdas = tuple(float(x) for x in self.lambdas)  # type: ignore[assignment]
         if len(self.lambdas) != 3 or min(self.lambdas) < 0 or min(self.lambdas[:2]) <= 0:
             raise _error(f"lambdas must be (lm > 0, ls > 0, lp >= 0), got {self.lambdas}")
+        if self.cross_positions not in POSITIONS:
+            raise _error(f"cross_positions must be one of {POSITIONS}, got {self.cross_positions!r}")
+        if self.cross_lp is not None:
+            if isinstance(self.cross_lp, bool) or not isinstance(self.cross_lp, (int, float)) or \
+                    not 0 <= self.cross_lp < float("inf"):
+                raise _error(f"cross_lp must be null or a finite number >= 0, got {self.cross_lp!r}")
+            self.cross_lp = float(self.cross_lp)
         if self.neighbourhood < 1:
             raise _error(f"neighbourhood must be at least 1, got {self.neighbourhood}")
         self._check_model_settings()
@@ -86,13 +101,18 @@ class Config:
         return {"lambdas": list(self.lambdas), "rotation": self.rotation, "n_t": self.n_t,
                 "tree_components": self.tree_components, "tree_variance": self.tree_variance,
                 "medoid_candidates": self.medoid_candidates, "registration": {"neighbourhood": self.neighbourhood},
-                "modes": self.modes, "mode_variance": self.mode_variance, "c": self.c, "mean_iters": self.mean_iters}
+                "modes": self.modes, "mode_variance": self.mode_variance, "c": self.c, "mean_iters": self.mean_iters,
+                "positions": self.cross_positions, "cross_lp": self.cross_lp}
 
     def load_options(self):  # noqa: ANN201 - io.LoadOptions (io imports structures; keep this module light)
         """The :class:`~torch4dtree.io.LoadOptions` with every setting the two share taken from here."""
         from .io import LoadOptions
 
         return LoadOptions(**{name: getattr(self, name) for name in LOAD_SETTINGS})
+
+    def cross_args(self) -> dict:
+        """The cross-sequence registration settings as :func:`~torch4dtree.temporal.register4d` takes them."""
+        return {"positions": self.cross_positions, "cross_lp": self.cross_lp}
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)

@@ -13,9 +13,22 @@ import argparse
 import shutil
 from pathlib import Path
 
+from ..config import CROSS_LP, CROSS_POSITIONS, POSITIONS
 from .options import UsageError, int_at_least
 
 SECTION_NAMES = ("spatial", "temporal", "generative", "truth", "robustness")
+
+
+def _lp_or_none(text: str) -> float | None:
+    if text.lower() == "none":
+        return None
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number >= 0 or 'none', got {text!r}") from None
+    if not 0 <= value < float("inf"):
+        raise argparse.ArgumentTypeError(f"expected a number >= 0 or 'none', got {text!r}")
+    return value
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -33,6 +46,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="points per branch of the cycle-consistency table (default: %(default)s)")
     p.add_argument("--n-t", type=int_at_least(2), default=32, metavar="N",
                    help="common time samples of the trajectories (default: %(default)s)")
+    p.add_argument("--cross-positions", choices=POSITIONS, default=CROSS_POSITIONS,
+                   help="children's positions in the cross-sequence registrations (default: %(default)s)")
+    p.add_argument("--cross-lp", type=_lp_or_none, default=CROSS_LP, metavar="LP",
+                   help="relative lp of the cross-sequence registrations; 'none': the evaluation's lambdas "
+                        "(default: %(default)s)")
     p.add_argument("--seed", type=int, default=0, help="seed of every random choice (default: %(default)s)")
     p.add_argument("--no-figures", action="store_true", help="skip the rendered figures")
     p.add_argument("--overwrite", action="store_true", help="replace an earlier report in --out")
@@ -64,7 +82,8 @@ def run(args: argparse.Namespace) -> int:
     if out is not None:
         _prepare_out(out, args.overwrite)
     settings = EvalSettings(T=args.T, T_cycle=args.T_cycle, n_t=args.n_t, quick=args.quick, seed=args.seed,
-                            figures=not args.no_figures and out is not None)
+                            figures=not args.no_figures and out is not None, cross_positions=args.cross_positions,
+                            cross_lp=args.cross_lp)
     report = evaluate(data, out, settings, sections, progress=not args.quiet)
     if args.json:
         print(dumps(report))

@@ -177,7 +177,8 @@ def _geodesic4d_figure(data: EvalData, settings: EvalSettings, lay: FigureLayout
     if kind is None:
         return None
     ref, mov = _plants_of(data, kind)[:2]
-    res = register4d(ref.sequence, mov.sequence, lambdas=settings.lambdas, rotation=settings.rotation, n_t=lay.n_t)
+    res = register4d(ref.sequence, mov.sequence, lambdas=settings.lambdas, rotation=settings.rotation, n_t=lay.n_t,
+                     **settings.cross_args())
     before = index_order_registration(res)
     rows, labels = [], []
     for name, r in (("before", before), ("after", res)):
@@ -201,7 +202,7 @@ def _model_figures(data: EvalData, settings: EvalSettings, lay: FigureLayout, ou
     if kind is None:
         return []
     plants = _plants_of(data, kind)[:lay.max_plants]
-    model = FourDTreeModel(lambdas=settings.lambdas, rotation=settings.rotation, n_t=lay.n_t,
+    model = FourDTreeModel(lambdas=settings.lambdas, rotation=settings.rotation, n_t=lay.n_t, **settings.cross_args(),
                            medoid_candidates=1 if settings.quick else 3)
     model.fit([p.sequence for p in plants])
     note = f"fitted on {len(plants)} {kind} plants ({data.source}), {model.n_modes} modes, n_t = {lay.n_t}"

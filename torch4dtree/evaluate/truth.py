@@ -119,6 +119,15 @@ def _frame_labels(plant: Plant4D) -> list[list[int]]:
     return [lab[a:b] for a, b in zip(ptr[:-1], ptr[1:])]
 
 
+def _slot_labels(plant: Plant4D, aligned: Any) -> list[int]:
+    """The organ label of every slot of a within-sequence registration: its branch in the latest frame holding it
+    (the branch the representative tree, which the cross-sequence registration sees, takes)."""
+    labels = _frame_labels(plant)
+    last = aligned.latest_frame().tolist()
+    ident = aligned.identity.tolist()
+    return [labels[f][ident[f][k]] for k, f in enumerate(last)]
+
+
 def _within(plant: Plant4D, lambdas: Sequence[float], progress: bool) -> tuple[Any, list[IdentityScores], Any]:
     """One plant's within-sequence registration, its consecutive-pair scores and its chained identity accuracy."""
     from ..temporal.within import identity_accuracy, register_sequence
@@ -159,6 +168,12 @@ def default_within_lambdas(lambdas: Sequence[float]) -> tuple[float, float, floa
     return float(lambdas[0]), float(lambdas[1]), lp
 
 
+def _cross_lambdas(settings: EvalSettings) -> tuple[float, float, float]:
+    """The cross-plant registrations' lambdas: the pipeline's cross-sequence lp where one is set."""
+    lm, ls, lp = settings.lambdas
+    return float(lm), float(ls), float(lp if settings.cross_lp is None else settings.cross_lp)
+
+
 def _nearest_frame(plant: Plant4D, t: float) -> int:
     nt = plant.sequence.normalized_times().double()
     return int((nt - t).abs().argmin())
@@ -174,7 +189,8 @@ def _cross(a: Plant4D, b: Plant4D, at: Sequence[float], settings: EvalSettings, 
     out = []
     for t in at:
         ja, jb = _nearest_frame(a, t), _nearest_frame(b, t)
-        reg = register_trees(fa_all[ja], fb_all[jb], settings.lambdas, rotation)
+        reg = register_trees(fa_all[ja], fb_all[jb], _cross_lambdas(settings), rotation,
+                             positions=settings.cross_positions)
         out.append((t, ja, jb, identity_scores(reg.matches, la[ja], lb[jb])))
     return out
 
@@ -211,10 +227,13 @@ def _growth_warp(a: Plant4D, b: Plant4D, al_a: Any, al_b: Any, settings: EvalSet
     """Recover ``b``'s clock relative to ``a``'s (``b`` at ``xi(t)`` is as developed as ``a`` at ``t``)."""
     from ..temporal.spatiotemporal import register4d
 
-    reg = register4d(al_a, al_b, settings.lambdas, rotation, n_t=settings.n_t)
+    reg = register4d(al_a, al_b, settings.lambdas, rotation, n_t=settings.n_t, **settings.cross_args())
     grid = reg.times.double()
     true = true_warp(a, b, grid)
-    return {"reference": a.name, "moving": b.name, "warp_mae": warp_mae(reg.warp, true),
+    # the slot correspondence the 4D registration kept (matches are (B slot, A slot)) against the organs
+    slots = identity_scores(reg.matches, _slot_labels(b, al_b), _slot_labels(a, al_a))
+    return {"slot_identity": slots, "spatial_candidate": reg.spatial_candidate,
+            "reference": a.name, "moving": b.name, "warp_mae": warp_mae(reg.warp, true),
             "oracle_mae": warp_mae(_oracle_warp(a, b, settings), true), "identity_mae": warp_mae(grid, true),
             "distance_before": reg.distance_before, "distance_spatial": reg.distance_after_spatial,
             "distance_temporal": reg.distance_after_temporal, "kept_index_order": bool(reg.kept_index_order)}
@@ -246,6 +265,8 @@ def _kind(plants: list[Plant4D], settings: EvalSettings, progress: bool, timings
                   "per_time": {f"{t:.3g}": pooled(row[-1] for row in cross_rows if row[2] == t) for t in at},
                   "rows": [{"moving": m, "reference": r, "time": t, "frame_moving": ja, "frame_reference": jb,
                             "precision": sc.precision, "recall": sc.recall} for m, r, t, ja, jb, sc in cross_rows]},
+        # the pipeline's cross-sequence correspondence (register4d's representatives) against the organs
+        "cross_4d": pooled(w.pop("slot_identity") for w in warps),
         "growth_warp": {"warp_mae": summary(w["warp_mae"] for w in warps),
                         "oracle_mae": summary(w["oracle_mae"] for w in warps),
                         "identity_mae": summary(w["identity_mae"] for w in warps), "pairs": warps},
@@ -262,7 +283,8 @@ def run(datas: dict[str, EvalData], settings: EvalSettings, progress: bool = Fal
     what = {"within": "within-sequence registrations of the synthetic plants (register_sequence)",
             "cross": "cross-plant registrations of synthetic frames (vertical rotation)",
             "growth_warp": "spatiotemporal registrations of synthetic plant pairs (register4d) and oracle warps"}
-    return {"synthetic": {"kinds": kinds, "lambdas": list(settings.lambdas), "n_t": settings.n_t},
+    return {"synthetic": {"kinds": kinds, "lambdas": list(settings.lambdas), "n_t": settings.n_t,
+                          "cross_registration": settings.cross_args()},
             "timings": {f"synthetic_{k}": {"seconds": v, "paper_seconds": None, "what": what[k]}
                         for k, v in timings.items()}}
 
@@ -299,16 +321,18 @@ def markdown(report: dict[str, Any]) -> list[str]:
              "(lm, ls, lp; lp relative to the plant's size) and with register_sequence's default lp); *chained*: "
              "share of all branches of a plant sitting in their organ's slot after chaining; *across*: two plants "
              "at the same normalised time (about 1/3, 2/3 and the end), rotation about the vertical, the "
-             "evaluation's lambdas.", "",
+             "cross-sequence registration's settings (positions, lp).", "",
              *md_table(["kind", "plants", "lambdas", "within P / R", "chained (mean, min)", "across P / R"],
                        [row for k, v in kinds.items() for row in _within_table_rows(k, v)]), "",
              "Growth-warp recovery: the spatiotemporal registration of pairs of plants (register4d) against the "
              "true relative clock h_b^-1(h_a(t)), mean absolute error on the normalised grid (mean over pairs, "
              "max in brackets); *oracle*: trajectories in a layout by ground-truth organ (temporal step alone); "
-             "*identity*: no temporal registration.", "",
-             *md_table(["kind", "pairs", "registered", "oracle layout", "identity warp"],
+             "*identity*: no temporal registration. *Slots P / R*: the slot correspondence register4d kept "
+             "(representatives' slots, labelled by their latest branch) against the organs.", "",
+             *md_table(["kind", "pairs", "registered", "oracle layout", "identity warp", "slots P / R"],
                        [[k, len(v["growth_warp"]["pairs"])]
                         + [f"{fmt(v['growth_warp'][m]['mean'])} ({fmt(v['growth_warp'][m]['max'])})"
-                           for m in ("warp_mae", "oracle_mae", "identity_mae")] for k, v in kinds.items()])]
+                           for m in ("warp_mae", "oracle_mae", "identity_mae")]
+                        + [_pr(v["cross_4d"]) if "cross_4d" in v else "-"] for k, v in kinds.items()])]
     return lines
 

@@ -22,6 +22,7 @@ from torch import Tensor, nn
 
 from ..temporal.population import Population
 from ..temporal.registration import time_warp_trajectory
+from ..temporal.spatiotemporal import CROSS_LP, CROSS_POSITIONS
 from ..trees.structures import Trees, TreeSequence
 from .sampler import TruncatedNormalSampler
 from .trajectory import TrajectoryMean, TrajectoryPCA, flatten_srvf
@@ -93,8 +94,9 @@ class FourDTreeModel(nn.Module):
     """Generative model of 4D trees. Build with the settings, then :meth:`fit` (CPU), or :func:`torch4dtree.load`.
 
     Args:
-        lambdas, rotation, n_t, tree_components, tree_variance, medoid_candidates, registration: the tree space
-            (:class:`~torch4dtree.temporal.population.Population`).
+        lambdas, rotation, n_t, tree_components, tree_variance, medoid_candidates, registration, positions,
+            cross_lp: the tree space (:class:`~torch4dtree.temporal.population.Population`; ``positions`` and
+            ``cross_lp`` are its cross-sequence registrations' settings).
         modes, mode_variance: the trajectory PCA (a fixed number of modes or the variance share kept).
         c: the sampler's truncation bound.
         mean_iters, temporal: the 4D Karcher mean's rounds and the temporal DP settings.
@@ -103,15 +105,16 @@ class FourDTreeModel(nn.Module):
     def __init__(self, lambdas: Sequence[float] = (1.0, 1.0, 1.0), rotation: str = "none", n_t: int = 32,
                  tree_components: int | None = None, tree_variance: float = 0.99, medoid_candidates: int = 3,
                  registration: dict[str, Any] | None = None, modes: int | None = None, mode_variance: float = 0.95,
-                 c: float = 3.0, mean_iters: int = 10, temporal: dict[str, Any] | None = None) -> None:
+                 c: float = 3.0, mean_iters: int = 10, temporal: dict[str, Any] | None = None,
+                 positions: str = CROSS_POSITIONS, cross_lp: float | None = CROSS_LP) -> None:
         super().__init__()
         self.args = {"lambdas": [float(x) for x in lambdas], "rotation": rotation, "n_t": n_t,
                      "tree_components": tree_components, "tree_variance": tree_variance,
                      "medoid_candidates": medoid_candidates, "registration": dict(registration or {}),
                      "modes": modes, "mode_variance": mode_variance, "c": float(c), "mean_iters": mean_iters,
-                     "temporal": dict(temporal or {})}
+                     "temporal": dict(temporal or {}), "positions": positions, "cross_lp": cross_lp}
         self.population = Population(lambdas, rotation, n_t, tree_components, tree_variance, medoid_candidates,
-                                     registration)
+                                     registration, positions, cross_lp)
         self.mean = TrajectoryMean(mean_iters, registration=temporal)
         self.pca = TrajectoryPCA(modes, mode_variance)
         self.sampler = TruncatedNormalSampler(1, c)
@@ -139,7 +142,10 @@ class FourDTreeModel(nn.Module):
             state_dict = {**state_dict, "forecast_gain": torch.tensor(0.0, dtype=torch.float64)}
         # the gain is one scalar (checkpoints before the per-component gain) or (k,): a shape, taken from the state
         self.forecast_gain = torch.zeros_like(state_dict["forecast_gain"], dtype=torch.float64)
-        return super().load_state_dict(state_dict, strict, assign)
+        out = super().load_state_dict(state_dict, strict, assign)
+        # the population's saved settings win (a state saved before they existed was fitted with warped positions)
+        self.args.update(positions=self.population.positions, cross_lp=self.population.cross_lp)
+        return out
 
     @property
     def is_fitted(self) -> bool:

@@ -18,7 +18,9 @@
    (:func:`grow_union`). So a branch the reference lacks opens one slot that later plants can share (issue 13:
    matching every plant onto the reference alone opened a slot per plant for it; 6 synthetic tomato plants,
    ``synthetic_dataset("tomato", plants=6, seed=0, n_frames=8, T=32)``: 212 -> 164 slots, Pheno4D tomato ``.mat``
-   at T = 64: 227 -> 178). Until a slot is opened, the batched registrations onto the reference are reused; the
+   at T = 64: 227 -> 178). These registrations use the cross-sequence settings ``positions`` / ``cross_lp``
+   (default warped, lp 10 relative: :data:`~torch4dtree.temporal.spatiotemporal.CROSS_LP`); the layout keeps the
+   space's metric. Until a slot is opened, the batched registrations onto the reference are reused; the
    later ones are one call per plant (cross-sequence time there 6.4 -> 9.6 s, Pheno4D 14 -> 20 s);
 4. a :class:`TreePCA` on all frames, and each 4D tree's **trajectory** ``(n_t, k)`` on the normalised time grid
    ``linspace(0, 1, n_t)`` between its first and last frame (its ``time_spans`` give data units back).
@@ -43,7 +45,16 @@ from ..space.pca import TreePCA
 from ..trees.aligned import AlignedTrees, slot_weights
 from ..trees.registration import RELATIVE_LP_SCALE, _check_lambdas, register_to_reference
 from ..trees.structures import Trees, TreeSequence
-from .spatiotemporal import combine_many, grow_union, open_slots, place_sequence, representative_tree
+from .spatiotemporal import (
+    CROSS_LP,
+    CROSS_POSITIONS,
+    check_cross_settings,
+    combine_many,
+    grow_union,
+    open_slots,
+    place_sequence,
+    representative_tree,
+)
 from .trajectory import resample_trajectory
 from .within import AlignedSequence, register_sequence
 
@@ -81,19 +92,26 @@ class Population(FittedModule):
         medoid_candidates: how many representatives compete for the reference (each costs one batched
             registration of all ``N``).
         registration: keyword arguments of the tree registrations (``neighbourhood``, ``n_starts``...).
+        positions, cross_lp: the cross-sequence registrations' (medoid, union, :meth:`transform`) positions
+            (``"warped"`` or ``"arclength"``) and relative ``lp`` (``None``: ``lambdas[2]``; the space's metric
+            keeps ``lambdas``), as in :func:`~torch4dtree.temporal.register4d`. Within a sequence,
+            :func:`register_sequence` keeps its own.
 
     Fitted buffers: ``ref_points (S, T, d)``, ``ref_parent (S,)``, ``ref_s (S,)`` (the union representative,
     module doc step 3: one branch per layout slot, in slot order), ``trajectories (N, n_t, k)``,
     ``time_spans (N, 2)`` (first and last frame time of each training 4D tree); the tree PCA is the submodule
-    ``pca``. ``lambdas_`` (the effective weights), ``names_``, ``report_`` travel in the extra state.
+    ``pca``. ``lambdas_`` (the effective weights), ``cross_lambdas_`` (the cross registrations' effective weights),
+    ``names_``, ``report_`` travel in the extra state.
     """
 
     _fitted_buffers = ("ref_points", "ref_parent", "ref_s", "trajectories", "time_spans")
 
     def __init__(self, lambdas: Sequence[float] = (1.0, 1.0, 1.0), rotation: str = "none", n_t: int = 32,
                  n_components: int | None = None, variance: float = 0.99, medoid_candidates: int = 3,
-                 registration: dict[str, Any] | None = None) -> None:
+                 registration: dict[str, Any] | None = None, positions: str = CROSS_POSITIONS,
+                 cross_lp: float | None = CROSS_LP) -> None:
         super().__init__()
+        check_cross_settings(positions, cross_lp)
         if rotation not in ROTATIONS:
             raise ValueError(f"rotation must be one of {ROTATIONS}, got {rotation!r}")
         if not isinstance(n_t, int) or n_t < 2:
@@ -103,7 +121,8 @@ class Population(FittedModule):
         self.lambdas = _check_lambdas(lambdas)
         self.rotation, self.n_t, self.medoid_candidates = rotation, n_t, int(medoid_candidates)
         self.registration = dict(registration or {})
-        self.lambdas_ = self.lambdas
+        self.positions, self.cross_lp = positions, None if cross_lp is None else float(cross_lp)
+        self.lambdas_ = self.cross_lambdas_ = self.lambdas
         self.names_: list[str] = []
         self.report_: dict[str, Any] = {}
         self.pca = TreePCA(n_components=n_components, variance=variance)
@@ -118,7 +137,8 @@ class Population(FittedModule):
     def get_extra_state(self) -> dict[str, Any]:
         return {"version": 1, "lambdas": list(self.lambdas), "rotation": self.rotation, "n_t": self.n_t,
                 "medoid_candidates": self.medoid_candidates, "registration": dict(self.registration),
-                "lambdas_": list(self.lambdas_), "names": list(self.names_), "report": self.report_}
+                "lambdas_": list(self.lambdas_), "names": list(self.names_), "report": self.report_,
+                "positions": self.positions, "cross_lp": self.cross_lp, "cross_lambdas_": list(self.cross_lambdas_)}
 
     def set_extra_state(self, state: dict[str, Any]) -> None:
         if not isinstance(state, dict) or state.get("version") != 1:
@@ -126,6 +146,10 @@ class Population(FittedModule):
         self.lambdas, self.rotation, self.n_t = _check_lambdas(state["lambdas"]), state["rotation"], state["n_t"]
         self.medoid_candidates, self.registration = state["medoid_candidates"], dict(state["registration"])
         self.lambdas_ = _check_lambdas(state["lambdas_"])
+        # states saved before the setting existed were fitted with warped positions and the space's lp
+        self.positions, self.cross_lp = state.get("positions", "warped"), state.get("cross_lp")
+        check_cross_settings(self.positions, self.cross_lp)
+        self.cross_lambdas_ = _check_lambdas(state.get("cross_lambdas_", state["lambdas_"]))
         self.names_, self.report_ = list(state["names"]), dict(state["report"])
 
     @property
@@ -164,6 +188,9 @@ class Population(FittedModule):
         lengths = torch.stack([s.frames[len(s) - 1].branch_lengths()[0] for s in seqs])
         lm, ls, lp = self.lambdas
         lam = (lm, ls, lp * RELATIVE_LP_SCALE * float(lengths.median()))
+        # the cross registrations' weights (the layout keeps lam)
+        self.cross_lambdas_ = lam if self.cross_lp is None else \
+            (lm, ls, self.cross_lp * RELATIVE_LP_SCALE * float(lengths.median()))
         from tqdm.auto import tqdm
 
         # identities over time with register_sequence's own weights (lp relative to each frame pair: a plant's
@@ -174,8 +201,8 @@ class Population(FittedModule):
         t0 = time.perf_counter()
         reps = [representative_tree(a) for a in aseqs]
         names = [s.name or f"plant_{i}" for i, s in enumerate(seqs)]
-        ref, regs = self._medoid(reps, names, lam, progress)
-        movs, union, regs = self._union(aseqs, reps, names, ref, regs, lam, progress)
+        ref, regs = self._medoid(reps, names, self.cross_lambdas_, progress)
+        movs, union, regs = self._union(aseqs, reps, names, ref, regs, self.cross_lambdas_, progress)
         seconds["cross_sequence"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         layout = combine_many(aseqs[ref], [aseqs[i] for i in movs], [regs[i].matches for i in movs],
@@ -204,6 +231,7 @@ class Population(FittedModule):
             # each plant's registration the layout used: onto the union representative as it was at its turn
             "cross_distance_before": [float(r.distance_before) for r in regs],
             "cross_distance_after": [float(r.distance) for r in regs], "seconds": seconds,
+            "cross_registration": {"positions": self.positions, "lambdas": list(self.cross_lambdas_)},
         }
         self._set_fitted(ref_points=union.points, ref_parent=union.parent, ref_s=union.s, trajectories=trajs,
                          time_spans=spans)
@@ -224,7 +252,7 @@ class Population(FittedModule):
         for c in tqdm(cands, disable=not progress, desc="choosing the reference", unit="candidate"):
             # one way, as every use of a layout's registrations below (symmetric=False: no inverted solutions)
             regs = register_to_reference(batch, reps[c], lam, self.rotation, lp_relative=False, symmetric=False,
-                                         **self.registration)
+                                         positions=self.positions, **self.registration)
             energy = sum(float(r.distance) ** 2 for r in regs)
             if best is None or (energy, names[c]) < best[:2]:
                 best = (energy, names[c], c, regs)
@@ -249,7 +277,7 @@ class Population(FittedModule):
         for i in tqdm(movs, disable=not progress, desc="union layout", unit="plant"):
             if union.points.shape[0] > reps[ref].points.shape[0]:
                 regs[i] = register_to_reference(reps[i], union, lam, self.rotation, lp_relative=False,
-                                                symmetric=False, **self.registration)[0]
+                                                symmetric=False, positions=self.positions, **self.registration)[0]
             gamma, rot = regs[i].gamma.to(torch.float64), regs[i].rotation.to(torch.float64)
             targets = open_slots(aseqs[i], regs[i].matches, slot_parent, slot_depth)
             union = grow_union(union, aseqs[i], targets, slot_parent, gamma, rot)
@@ -278,8 +306,8 @@ class Population(FittedModule):
             aligned = register_sequence(seq, **self.registration)  # as in fit
         rep = representative_tree(aligned)
         ref = self.reference_tree()
-        reg = register_to_reference(rep, ref, self.lambdas_, self.rotation, lp_relative=False, symmetric=False,
-                                    **self.registration)[0]
+        reg = register_to_reference(rep, ref, self.cross_lambdas_, self.rotation, lp_relative=False, symmetric=False,
+                                    positions=self.positions, **self.registration)[0]
         S_r = ref.points.shape[0]
         matched = dict(reg.matches)
         S_m = aligned.num_slots
@@ -317,7 +345,8 @@ class Population(FittedModule):
 
 def fit_population(sequences: Sequence[TreeSequence], lambdas: Sequence[float] = (1.0, 1.0, 1.0),
                    rotation: str = "none", n_t: int = 32, variance: float = 0.99, n_components: int | None = None,
-                   progress: bool = False, medoid_candidates: int = 3, **registration: Any) -> Population:
+                   progress: bool = False, medoid_candidates: int = 3, positions: str = CROSS_POSITIONS,
+                   cross_lp: float | None = CROSS_LP, **registration: Any) -> Population:
     """``N`` 4D trees in one tree space (module doc): ``Population(...).fit(sequences)``."""
     return Population(lambdas, rotation, n_t, n_components, variance, medoid_candidates,
-                      registration).fit(sequences, progress)
+                      registration, positions, cross_lp).fit(sequences, progress)
