@@ -498,3 +498,20 @@ def test_pheno4d_warped_copy_drop():
                                   random_warp(6, 1001, generator=torch.Generator().manual_seed(0)))
     assert float(drop.min()) >= 0.95, drop
     assert float(err.max()) < 0.02, err
+
+
+def test_trajectory_distance_is_the_distance_before_registration():
+    """The identity-warp 4D distance without the DP equals register_trajectories' distance_before, for moving
+    trajectories on the grid and sampled finer, with leading dims; and it is 0 for a trajectory against itself."""
+    from torch4dtree.temporal import fine_size, trajectory_distance
+
+    g = torch.Generator().manual_seed(3)
+    a = torch.randn(2, 3, 9, 4, generator=g, dtype=torch.float64).cumsum(-2)
+    b = torch.randn(2, 3, 9, 4, generator=g, dtype=torch.float64).cumsum(-2)
+    torch.testing.assert_close(trajectory_distance(a, b), register_trajectories(a, b).distance_before)
+    frames = torch.randn(5, 4, generator=g, dtype=torch.float64).cumsum(0)
+    times = torch.tensor([0.0, 1.0, 2.5, 3.0, 7.0], dtype=torch.float64)
+    ref = resample_trajectory(frames, times, 9)
+    fine = resample_trajectory(frames.flip(0), times, fine_size(9, times))
+    torch.testing.assert_close(trajectory_distance(ref, fine), register_trajectories(ref, fine).distance_before)
+    assert float(trajectory_distance(ref, ref)) == 0.0

@@ -8,7 +8,13 @@
 * :mod:`.spatiotemporal` registers two 4D trees in space and time (:func:`register4d`).
 """
 
-from .registration import TemporalRegistration, geodesic4d, register_trajectories, time_warp_trajectory
+from .registration import (
+                           TemporalRegistration,
+                           geodesic4d,
+                           register_trajectories,
+                           time_warp_trajectory,
+                           trajectory_distance,
+)
 from .spatiotemporal import SpatiotemporalRegistration, combine_sequences, register4d, representative_tree
 from .trajectory import Trajectory, fine_size, resample_trajectory, trajectory_from_srvf, trajectory_srvf
 from .within import AlignedSequence, IdentityAccuracy, identity_accuracy, register_sequence
@@ -17,5 +23,5 @@ __all__ = [
     "AlignedSequence", "IdentityAccuracy", "SpatiotemporalRegistration", "TemporalRegistration", "Trajectory",
     "combine_sequences", "fine_size", "geodesic4d", "identity_accuracy", "register4d", "register_sequence",
     "register_trajectories", "representative_tree", "resample_trajectory", "time_warp_trajectory",
-    "trajectory_from_srvf", "trajectory_srvf",
+    "trajectory_distance", "trajectory_from_srvf", "trajectory_srvf",
 ]

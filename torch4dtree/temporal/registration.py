@@ -24,7 +24,7 @@ from ..curves.refinement import refine_on_finer
 from ..curves.register import _pick_backend, _register_numba, _settings, dp_warp
 from ..curves.srvf import interpolate_curve, inverse_srvf, srvf, srvf_sq_distance, uniform_grid
 
-__all__ = ["TemporalRegistration", "geodesic4d", "register_trajectories", "time_warp_trajectory"]
+__all__ = ["TemporalRegistration", "geodesic4d", "register_trajectories", "trajectory_distance", "time_warp_trajectory"]
 
 # DP settings chosen by measurement (bench/temporal.py; 300 smooth random trajectories in R^10 at n_t = 32
 # against copies warped by random_warp, strength 1 / 1.5). The lattice alone is coarse at n_t = 32: slopes up
@@ -89,6 +89,23 @@ def _norm(sq: Tensor) -> Tensor:
     return torch.where(sq > 0, sq.clamp_min(1e-300).sqrt(), torch.zeros_like(sq))
 
 
+def _identity_parts(ref: Tensor, mov: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """``(B, n_t, k)`` pairs: their SRVFs, the squared SRVF distance and the squared start-point distance."""
+    q_ref, q_mov = srvf(ref), srvf(mov)
+    return q_ref, q_mov, srvf_sq_distance(q_ref, q_mov), (ref[:, 0] - mov[:, 0]).square().sum(-1)
+
+
+def trajectory_distance(alpha_ref: Tensor, alpha_mov: Tensor) -> Tensor:
+    """The 4D distance with the identity time warp, ``(...,)``: ``register_trajectories(...).distance_before``
+    without the DP (same inputs, ``alpha_mov`` possibly finer)."""
+    factor = _check_trajectories(alpha_ref, alpha_mov)
+    lead, (n_t, k) = alpha_ref.shape[:-2], alpha_ref.shape[-2:]
+    ref = alpha_ref.reshape(-1, n_t, k)
+    mov = alpha_mov.reshape(-1, alpha_mov.shape[-2], k).to(ref.dtype)[:, ::factor]
+    _, _, e, start_sq = _identity_parts(ref, mov)
+    return _norm(start_sq + e).reshape(lead)
+
+
 def register_trajectories(alpha_ref: Tensor, alpha_mov: Tensor, neighbourhood: int = NEIGHBOURHOOD,
                           refine: int = REFINE, band: int | None = None, coarse: int | None = None,
                           backend: str = "auto") -> TemporalRegistration:
@@ -119,8 +136,7 @@ def register_trajectories(alpha_ref: Tensor, alpha_mov: Tensor, neighbourhood: i
     ref = alpha_ref.reshape(-1, n_t, k)
     fine = alpha_mov.reshape(-1, alpha_mov.shape[-2], k).to(ref.dtype)
     mov = fine[:, ::factor]
-    q_ref, q_mov = srvf(ref), srvf(mov)
-    e_before = srvf_sq_distance(q_ref, q_mov)
+    q_ref, q_mov, e_before, start_sq = _identity_parts(ref, mov)
     if ref.shape[0] == 0:
         warp = ref.new_zeros(0, n_t)
     elif _pick_backend(backend, ref) == "numba":
@@ -146,7 +162,6 @@ def register_trajectories(alpha_ref: Tensor, alpha_mov: Tensor, neighbourhood: i
         registered = interpolate_curve(mov, warp)
     q_reg = srvf(registered)
     e_after = srvf_sq_distance(q_ref, q_reg)
-    start_sq = (ref[:, 0] - mov[:, 0]).square().sum(-1)
     # the DP never returns worse than the identity; this guards the recomputed (float) energy too
     worse = e_after > e_before
     if bool(worse.any()):

@@ -17,7 +17,7 @@ The pipeline, for 4D trees ``A`` (reference) and ``B`` (moving):
    warps; what *before* is measured with, so the spatial stage never ends above it). Where neither registered
    candidate beats index order, the representatives are registered again with a wider rotation search
    (``fallback_rotation``, default ``"vertical"``) and its two candidates (``"registered_vertical"``,
-   ``"correspondence_vertical"``) join: 3 of 16 Pheno4D pairs, which it lowers.
+   ``"correspondence_vertical"``) join: 2 of 16 Pheno4D pairs at the default ``cross_lp``, which it lowers.
 3. **Tree space**: PCA of all frames' weighted SRVFT features (all components by default, so coefficient
    distances are exactly tree distances); each 4D tree becomes a trajectory in ``R^k``, resampled at ``n_t``
    equally spaced normalised times between its actual frame times.
@@ -44,7 +44,7 @@ from ..space.pca import TreePCA
 from ..trees.aligned import AlignedTrees
 from ..trees.registration import POSITIONS, effective_lambdas, index_order_matches, register_trees
 from ..trees.structures import Trees, TreeSequence
-from .registration import TemporalRegistration, geodesic4d, register_trajectories
+from .registration import TemporalRegistration, geodesic4d, register_trajectories, trajectory_distance
 from .trajectory import fine_size, resample_trajectory, trajectory_srvf
 from .within import AlignedSequence, _inverse_at, register_sequence
 
@@ -53,7 +53,7 @@ __all__ = ["CROSS_LP", "CROSS_POSITIONS", "SpatiotemporalRegistration", "check_c
            "place_sequence", "register4d", "representative_tree"]
 
 DEFAULT_NT = 32
-# the wider search of the spatial stage where the first did not beat index order (3 of 16 Pheno4D pairs; ~10x the
+# the wider search of the spatial stage where the first did not beat index order (2 of 16 Pheno4D pairs; ~10x the
 # cost of rotation="none" on tomato, paid only there)
 FALLBACK_ROTATION = "vertical"
 # The cross-sequence registrations' settings (register4d's spatial stage, Population): how a matched child's place
@@ -293,6 +293,14 @@ class SpatiotemporalRegistration(NamedTuple):
         return a, b, b_reg
 
 
+def _split_trajectories(coeffs: Tensor, n_ref: int, ref_times: Tensor, mov_times: Tensor, n_t: int,
+                        mov_samples: int | None = None) -> tuple[Tensor, Tensor]:
+    """Frame coefficients (``A``'s frames first) -> ``alpha_ref (n_t, k)``, ``alpha_mov (mov_samples, k)``."""
+    alpha_ref = resample_trajectory(coeffs[:n_ref], ref_times.to(coeffs.dtype), n_t)
+    alpha_mov = resample_trajectory(coeffs[n_ref:], mov_times.to(coeffs.dtype), mov_samples or n_t)
+    return alpha_ref, alpha_mov
+
+
 def _trajectories(layout: AlignedTrees, n_ref: int, ref_times: Tensor, mov_times: Tensor, n_t: int,
                   n_components: int | None, mov_samples: int | None = None) -> tuple[TreePCA, Tensor, Tensor]:
     """PCA of ``layout`` and the trajectories ``alpha_ref (n_t, k)``, ``alpha_mov (mov_samples, k)`` (default
@@ -300,10 +308,7 @@ def _trajectories(layout: AlignedTrees, n_ref: int, ref_times: Tensor, mov_times
     n = layout.num_trees
     k = n - 1 if n_components is None else n_components
     pca = TreePCA(n_components=min(k, n - 1)).fit(layout)
-    coeffs = pca.transform(layout)
-    alpha_ref = resample_trajectory(coeffs[:n_ref], ref_times.to(coeffs.dtype), n_t)
-    alpha_mov = resample_trajectory(coeffs[n_ref:], mov_times.to(coeffs.dtype), mov_samples or n_t)
-    return pca, alpha_ref, alpha_mov
+    return pca, *_split_trajectories(pca.transform(layout), n_ref, ref_times, mov_times, n_t, mov_samples)
 
 
 def _candidate_distance(layout: AlignedTrees, n_ref: int, ref_times: Tensor, mov_times: Tensor, n_t: int,
@@ -317,13 +322,11 @@ def _candidate_distance(layout: AlignedTrees, n_ref: int, ref_times: Tensor, mov
     """
     if n_components is not None:
         _, a, b = _trajectories(layout, n_ref, ref_times, mov_times, n_t, n_components, mov_samples)
-        return float(register_trajectories(a, b).distance_before)
-    X = layout.features().detach()
-    Xc = X - X.mean(0)
-    coeffs = torch.linalg.qr(Xc.T)[1].T
-    a = resample_trajectory(coeffs[:n_ref], ref_times.to(coeffs.dtype), n_t)
-    b = resample_trajectory(coeffs[n_ref:], mov_times.to(coeffs.dtype), mov_samples)
-    return float(register_trajectories(a, b).distance_before)
+    else:
+        X = layout.features().detach()
+        coeffs = torch.linalg.qr((X - X.mean(0)).T)[1].T
+        a, b = _split_trajectories(coeffs, n_ref, ref_times, mov_times, n_t, mov_samples)
+    return float(trajectory_distance(a, b))
 
 
 def register4d(reference: TreeSequence | AlignedSequence, moving: TreeSequence | AlignedSequence,
