@@ -397,8 +397,7 @@ def _refit_to_children(ref_q: Tensor, mov_q: Tensor, gamma: np.ndarray, s_mov: n
 
 def _solve(movs: Sequence[_Tree], refs: Sequence[_Tree], jobs: Sequence[tuple[int, int, Tensor]],
            lambdas: Sequence[Lambdas], dp_opts: dict, prune: bool, max_depth: int | None = None,
-           landmarks: bool = True, arclength: bool = False, order_tol: float | None = None,
-           fixed: Sequence[dict[int, int]] | None = None) -> list[_Config]:
+           landmarks: bool = True, arclength: bool = False, order_tol: float | None = None) -> list[_Config]:
     """Warps + assignments for fixed rotations. ``jobs[k] = (moving index, reference index, O (d, d))``;
     ``lambdas[m]`` are the weights of moving tree ``m`` (with ``lp_relative`` each pair has its own ``lp``; the
     DP warps do not depend on the weights, so pairs of different weights still share the batched DP calls).
@@ -407,12 +406,10 @@ def _solve(movs: Sequence[_Tree], refs: Sequence[_Tree], jobs: Sequence[tuple[in
     approximate solve used to rank starting rotations. ``landmarks`` refits each parent's warp to its
     matched children (:func:`_refit_to_children`; not with ``arclength``, where a warp does not move children).
     ``arclength``: children's positions compared by arc length (:func:`_child_positions`). ``order_tol``: children's
-    matching, see :func:`_match_children`. ``fixed[k]`` (moving -> reference branch): job ``k`` keeps exactly these
-    matches (the warps are solved for them; pass ``prune=False``, as a fixed pair must be explored).
+    matching, see :func:`_match_children`.
     """
     landmarks = landmarks and not arclength
     T = movs[0].q.shape[1] + 1
-    fixed_ref = None if fixed is None else [set(f.values()) for f in fixed]
     grid = np.linspace(0.0, 1.0, T)
     qrot = [_rotate(movs[m].q, O) for m, _, O in jobs]
     # top-down: candidate pairs per depth, one batched DP per depth
@@ -439,8 +436,6 @@ def _solve(movs: Sequence[_Tree], refs: Sequence[_Tree], jobs: Sequence[tuple[in
                 continue
             for c, s_c in zip(ca, sc):
                 for e in cb:
-                    if fixed is not None and fixed[k].get(c) != e:
-                        continue
                     if prune:
                         lb = lp * (s_c - ref.s[e]) ** 2 + ls * lm * (mov.sqrt_len[c] - ref.sqrt_len[e]) ** 2
                         if lb >= ls * (mov.norm[c] + ref.norm[e]):
@@ -473,9 +468,6 @@ def _solve(movs: Sequence[_Tree], refs: Sequence[_Tree], jobs: Sequence[tuple[in
                         if d_ce is not None:
                             sub[i, j] = ls * d_ce
                 null_mov, null_ref = ls * mov.norm[ca], ls * ref.norm[cb]
-                if fixed is not None:  # a fixed pair has no null option
-                    null_mov = np.where([c in fixed[k] for c in ca], np.inf, null_mov)
-                    null_ref = np.where([e in fixed_ref[k] for e in cb], np.inf, null_ref)  # type: ignore[index]
                 s_ref = ref.s[cb]
                 cost, pairs = _match_children(sub + lp * (sc[:, None] - s_ref[None, :]) ** 2, null_mov, null_ref,
                                               sc, s_ref, order_tol)
@@ -562,14 +554,10 @@ def _rank_starts(movs: Sequence[_Tree], refs: Sequence[_Tree], jobs: list[tuple[
     return out
 
 
-# solve the warps of an inverted symmetric registration again in the requested direction, for the same matches.
-# Off: it brings that direction's distance back to a one-way solve's (Pheno4D .mat T = 64, day k + 1 onto k: 13.089
-# one-way, 13.090 rewarped, 13.181 inverted) but the warps are then no longer inverse to each other, and .mat cycle
-# consistency at T = 256 is 0.27 / 0.40 / 0.85 / 2.76 % (mapped) instead of 0.00 %: weakly determined warps of
-# straight leaflets resolve differently each way (the old 0.62 / 0.75 / 1.20 / 3.11 % also had the matches).
-REWARP_INVERTED = False
-# the canonical direction of a symmetric registration (see _solve_reversed)
-SOLVE_LARGER_ONTO_SMALLER = False
+# Tried and removed (commit bf60447): solving an inverted registration's warps again in the requested direction for
+# the same matches brings that direction's distance back to a one-way solve's (Pheno4D .mat T = 64, day k + 1 onto
+# k: 13.089 one-way, 13.090 rewarped, 13.181 inverted), but the warps are then no longer inverse to each other and
+# .mat cycle consistency at T = 256 is 0.27 / 0.40 / 0.85 / 2.76 % (mapped) instead of 0.00 %.
 
 
 def _size_key(tree: _Tree) -> tuple[float, int, bytes]:
@@ -579,17 +567,17 @@ def _size_key(tree: _Tree) -> tuple[float, int, bytes]:
 
 def _solve_reversed(mov: _Tree, ref: _Tree) -> bool:
     """Whether a symmetric registration of ``mov`` onto ``ref`` solves ``ref`` onto ``mov`` and inverts it: the
-    smaller tree (by :func:`_size_key`) is always the one registered onto the larger (``SOLVE_LARGER_ONTO_SMALLER``
-    turns it round). The inverted direction's distance is above a one-way solve of it (the DP warps and the
-    position term ``lp (gamma^{-1}(s_c) - s_e)^2`` are not symmetric): Pheno4D consecutive days at T = 64, day
-    k + 1 onto k, mean 13.089 -> 13.181 (.mat), 16.231 -> 16.287 (SWC). Larger onto smaller keeps that direction
-    and costs the same in the other (13.132 -> 13.219), but lost identities where smaller onto larger (the
-    direction frames are chained in) keeps them: realistic synthetic maize, seeds 3-7, lp 9, consecutive
-    precision 97.6 -> 96.6 %, tomato seeds 0-2 99.8 -> 99.6 % (unchanged with smaller onto larger)."""
+    smaller tree (by :func:`_size_key`) is always the one registered onto the larger. The inverted direction's
+    distance is above a one-way solve of it (the DP warps and the position term ``lp (gamma^{-1}(s_c) - s_e)^2``
+    are not symmetric): Pheno4D consecutive days at T = 64, day k + 1 onto k, mean 13.089 -> 13.181 (.mat),
+    16.231 -> 16.287 (SWC). Larger onto smaller keeps that direction and costs the same in the other (13.132 ->
+    13.219), but lost identities where smaller onto larger (the direction frames are chained in) keeps them:
+    realistic synthetic maize, seeds 3-7, lp 9, consecutive precision 97.6 -> 96.6 %, tomato seeds 0-2 99.8 ->
+    99.6 % (unchanged with smaller onto larger)."""
     lm, lr = float((mov.sqrt_len ** 2).sum()), float((ref.sqrt_len ** 2).sum())
     if lm != lr:  # the hash is only needed for exact ties
-        return (lr > lm) == SOLVE_LARGER_ONTO_SMALLER
-    return (_size_key(ref) > _size_key(mov)) == SOLVE_LARGER_ONTO_SMALLER
+        return lm > lr
+    return _size_key(mov) >= _size_key(ref)
 
 
 def _inverse_config(cfg: _Config, n_moving: int) -> _Config:
@@ -652,9 +640,11 @@ def _build_aligned(mov: _Tree, ref: _Tree, match: dict[int, int], gamma: np.ndar
     qr = srvf(pts_r)
     M, d = qr.shape[1:]
     # a child's parameter moves with its parent's warp (identity for unmatched parents: a null partner at the same s)
-    s_m = np.array([0.0 if a == 0 else mov.s[a] if mov.parent[a] not in match else _child_positions(
-        mov, ref, mov.parent[a], match[mov.parent[a]], [a], gamma[mov.parent[a]], grid, arclength)[0]
-        for a in range(Nm)])
+    s_m = np.zeros(Nm)
+    for a in range(1, Nm):
+        p = mov.parent[a]
+        s_m[a] = mov.s[a] if p not in match else \
+            _child_positions(mov, ref, p, match[p], [a], gamma[p], grid, arclength)[0]
     q = torch.zeros(2, S, M, d, dtype=dtype, device=dev)
     s = torch.zeros(2, S, dtype=dtype, device=dev)
     present = torch.zeros(2, S, dtype=torch.bool, device=dev)
@@ -785,7 +775,7 @@ def register_to_reference(trees: Trees, reference: Trees, lambdas: Sequence[floa
             differently each way and 0.62 / 0.75 / 1.20 / 3.11 % of the mapped points missed by more than
             eps = 0.1 / 0.05 / 0.02 / 0.01 x the height (0.00 % at every eps with ``symmetric``). In the
             inverted direction the distance is that of the inverted solution (0.3-0.7 % above a one-way solve
-            on average on Pheno4D, see :func:`_solve_reversed`; ``REWARP_INVERTED``). ``False``: solve the given
+            on average on Pheno4D, see :func:`_solve_reversed`). ``False``: solve the given
             direction (one-way uses: chaining a sequence with a weight from one frame, comparing candidates
             by their distances onto one tree, aligning trees onto a mean or a layout). Symmetric for trees of
             equal ``T`` (others are resampled to the reference's).
@@ -872,17 +862,8 @@ def register_to_reference(trees: Trees, reference: Trees, lambdas: Sequence[floa
             if not nxt:
                 break
             jobs, last = nxt, nlast
-    # where the reference was registered onto a tree: the inverse correspondence, warps and rotation; with
-    # REWARP_INVERTED the warps are solved again in the requested direction for the same matches
+    # where the reference was registered onto a tree: the inverse correspondence, warps and rotation
     inverse = {m: _inverse_config(cfg, len(movs[m].parent)) for m, cfg in enumerate(best) if flip[m] and cfg}
-    rewarped: dict[int, _Config] = {}
-    if inverse and REWARP_INVERTED:
-        ms = list(inverse)
-        with torch.no_grad():
-            redo = _solve([movs[m] for m in ms], [ref], [(i, 0, inverse[m].O) for i, m in enumerate(ms)],
-                          [lams[m] for m in ms], dp_opts, False, arclength=arc, order_tol=order_tol,
-                          fixed=[inverse[m].match for m in ms])
-        rewarped = {m: c for m, c in zip(ms, redo) if c.match == inverse[m].match}
     out = []
     eye = torch.eye(reference.dim, dtype=torch.float64)
     for m, (mov, cfg, lam_m) in enumerate(zip(movs, best, lams)):
@@ -890,11 +871,6 @@ def register_to_reference(trees: Trees, reference: Trees, lambdas: Sequence[floa
         cfg = inverse.get(m, cfg)
         aligned = _build_aligned(mov, ref, cfg.match, cfg.gamma, cfg.O, lam_m, arc)
         dist = _pair_distance(aligned)
-        if m in rewarped and rewarped[m].energy < float(dist) ** 2:
-            al2 = _build_aligned(mov, ref, rewarped[m].match, rewarped[m].gamma, rewarped[m].O, lam_m, arc)
-            d2 = _pair_distance(al2)
-            if d2 < dist:
-                cfg, aligned, dist = rewarped[m], al2, d2
         ident = np.tile(np.linspace(0.0, 1.0, reference.T), (len(mov.parent), 1))
         base_match = _index_order_match(mov, ref)
         base = _build_aligned(mov, ref, base_match, ident, eye, lam_m, arc)
