@@ -21,10 +21,12 @@ from torch4dtree.data import synthetic_dataset, synthetic_plant
 from torch4dtree.temporal.within import identity_accuracy, register_sequence
 
 
-def plants(kind: str, T: int = 32) -> list:
-    """The 14 plants of the measurement (dataset plants first)."""
-    out = synthetic_dataset(kind, 8, 0, T=T, dtype=torch.float64)
-    return out + [synthetic_plant(kind, seed, n_frames=10, T=T, dtype=torch.float64) for seed in range(6)]
+def plants(kind: str, T: int = 32, hierarchy_kwargs: dict | None = None) -> list:
+    """The 14 plants of the measurement (dataset plants first); ``hierarchy_kwargs`` go to the joint hierarchy
+    (:func:`torch4dtree.trees.growth.consistent_frames`)."""
+    out = synthetic_dataset(kind, 8, 0, T=T, dtype=torch.float64, hierarchy_kwargs=hierarchy_kwargs)
+    return out + [synthetic_plant(kind, seed, n_frames=10, T=T, dtype=torch.float64, hierarchy_kwargs=hierarchy_kwargs)
+                  for seed in range(6)]
 
 
 def _slot_labels(aligned, labels: torch.Tensor) -> list[list[int | None]]:
@@ -61,9 +63,9 @@ def kind_of_error(slots: list[list[int | None]], x: int, organ: int, other: int 
     return "lost" if other is None else "swap"
 
 
-def measure(kind: str, worst: int = 5, **kwargs: object) -> dict:
+def measure(kind: str, worst: int = 5, hierarchy_kwargs: dict | None = None, **kwargs: object) -> dict:
     rows, t0 = [], time.perf_counter()
-    for p in plants(kind):
+    for p in plants(kind, hierarchy_kwargs=hierarchy_kwargs):
         al = register_sequence(p.sequence, **kwargs)  # type: ignore[arg-type]
         acc = identity_accuracy(al, p.sequence.frames.label)
         slots = _slot_labels(al, p.sequence.frames.label)
@@ -90,10 +92,12 @@ def main() -> None:
     ap.add_argument("--kinds", default="maize,tomato,bean")
     ap.add_argument("--worst", type=int, default=5)
     ap.add_argument("--order-tol", type=float, default=None, help="register_sequence's order_tol (when it has one)")
+    ap.add_argument("--top", type=int, default=None, help="the joint hierarchy's top branch points (consistent_frames)")
     ap.add_argument("--json", action="store_true")
     a = ap.parse_args()
     kw = {} if a.order_tol is None else {"order_tol": a.order_tol}
-    out = [measure(k, a.worst, **kw) for k in a.kinds.split(",")]
+    hk = None if a.top is None else {"top": a.top}
+    out = [measure(k, a.worst, hk, **kw) for k in a.kinds.split(",")]
     if a.json:
         print(json.dumps(out))
         return

@@ -25,9 +25,10 @@ def _stem_with_leaves(forks: list[tuple[int, tuple[float, float, float]]], heigh
     return np.array(xyz), np.array(parent), leaves
 
 
-def test_alternatives_leave_the_rules_main_path_at_its_two_topmost_forks():
+def test_alternatives_leave_the_rules_main_path_at_its_topmost_forks():
     xyz, parent, leaves = _stem_with_leaves([(10, (1, 0, 1)), (20, (-1, 0, 1)), (25, (0, 1, 1))])
-    paths = alternative_main_paths(xyz, parent)
+    assert len(alternative_main_paths(xyz, parent)) == 4  # the default: the three topmost forks
+    paths = alternative_main_paths(xyz, parent, top=2)
     main = paths[0]
     assert main == list(range(31))  # the rule runs up the straight stem
     assert len(paths) == 3  # one other child at each of the forks at z = 25 and z = 20, none at z = 10
@@ -59,6 +60,20 @@ def test_the_main_branch_stays_on_the_stem_over_time(kind, seed):
     joint = main_branch_organs(synthetic_plant(kind, seed, n_frames=10, T=16))
     assert any(o != 0 for o in alone), alone  # the data is unkind to the rule alone
     assert joint == [0] * len(joint), joint
+
+
+def test_a_leaf_with_leaflets_at_the_top_does_not_hide_the_stem_fork():
+    """Frame 2 of this bean plant: the rule runs up the stem into trifoliate 3, whose two leaflet forks are then the
+    main path's two topmost forks, so with ``top=2`` the stem's own fork below them is never reconsidered and the stem
+    tip is left as a second branch of the stem (organ 0 names two branches). Three forks reach it."""
+    from torch4dtree.data import synthetic_dataset
+
+    def stem_branches(top: int) -> list[int]:
+        plant = synthetic_dataset("bean", 1, 0, n_frames=10, T=16, hierarchy_kwargs={"top": top})[0]
+        return [int((frame.label == 0).sum()) for frame in plant.sequence.frames]
+
+    assert stem_branches(2)[2] == 2  # the data is unkind to two forks
+    assert stem_branches(3) == [1] * 10
 
 
 def test_reading_a_sequence_folder_chooses_jointly(tmp_path):

@@ -27,7 +27,7 @@ from .structures import DEFAULT_T, Trees
 __all__ = ["alternative_main_paths", "consistent_frames"]
 
 # how many of the main branch's topmost branch points may continue elsewhere
-TOP_BRANCH_POINTS = 2
+TOP_BRANCH_POINTS = 3
 # points per branch of the candidate trees compared by registration
 SCREEN_T = 16
 # layers of the candidate trees compared: the main branch and what hangs on it directly decide it
