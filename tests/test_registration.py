@@ -554,6 +554,35 @@ def test_cycle_consistency_bookkeeping_with_known_answers():
     assert flat_cc.unmatched == 0.0 and float(flat_cc.error_all.max()) == 0.0
 
 
+def test_cycle_consistency_with_null_branches_at_their_base():
+    """``error_null_at_base``: a point on B's extra branch (matched to null) goes to its null partner, the image of the
+    branch's base, and comes back near the base: it fails at eps exactly when it lies farther than eps x height from
+    the base (up to the base's own cycle residual), while ``error_all`` fails it at every eps; points with an image
+    count as in ``error``. At a huge eps nothing fails."""
+    A = random_tree(np.random.default_rng(4))
+    B0 = random_tree(np.random.default_rng(4), extra=(0.6, 7.0))
+    B, _ = transformed_copy_truth(B0, torch.Generator().manual_seed(4), "none", strength=0.5)
+    extra = int((B.label == int(B.num_branches[0]) - 1).nonzero()[0])
+    eps = (1e9, 0.3, 0.1, 0.05)
+    cc = cycle_consistency(B, A, eps=eps)
+    base_np = cc.error_null_at_base.numpy()
+    assert base_np[0] == 0.0 and float(cc.error_all[0]) == pytest.approx(cc.unmatched, rel=1e-12)
+    assert (base_np <= cc.error_all.numpy() + 1e-15).all()
+    # the extra branch's points: distance from the branch's base, as a fraction of B's height
+    T = B.T
+    base = B.attachment_points()[extra].to(torch.float64)
+    pts = B.points[extra].to(torch.float64)
+    d = ((pts - base).norm(dim=-1) / float(B.height()[0])).numpy()
+    w = float(B.branch_lengths()[extra]) / T / float(B.branch_lengths().sum())
+    mapped_fail = cc.error.numpy() * (1 - cc.unmatched)  # the points with an image, as a share of all
+    tol = 0.01  # the base's own cycle residual, in units of height
+    for i, e in enumerate(eps[1:], start=1):
+        lo = mapped_fail[i] + w * float((d > e + tol).sum())
+        hi = mapped_fail[i] + w * float((d > e - tol).sum())
+        assert lo - 1e-12 <= base_np[i] <= hi + 1e-12, (e, lo, base_np[i], hi)
+    assert base_np[2] > mapped_fail[2] + w  # the branch reaches beyond 0.1 x height: some of it fails
+
+
 @pytest.mark.parametrize("rotation", ["vertical", "so3"])
 def test_rotation_starts_spread_over_a_full_turn(rotation):
     """The starting rotations spin the main branches' rotation about one axis by evenly spaced angles covering the

@@ -172,10 +172,11 @@ def benchmark_cycle_consistency(root: str | Path | None = None, T: int = 64, rot
     branches matched to null (they have no image: ``unmatched_mean`` / ``unmatched_max`` is their share of
     the tree's length), ``all_mean`` / ``all_median`` count them as failures. The paper's definition maps
     every point of A through its correspondence and does not say what happens to points without one; its
-    figures can be compared with either, and ours are reported both ways.
+    figures can be compared with either, and ours are reported both ways; ``null_at_base_mean`` sends them to their
+    null partner at the branch's base (the paper's null branches, :mod:`torch4dtree.trees.correspondence`).
 
-    Returns ``{"eps", "mean", "median", "std", "all_mean", "all_median", "paper_mean", "unmatched_mean",
-    "unmatched_max", "lost_mean", "pairs", "per_kind": {...}, "rows": [(kind, name, error, error_all,
+    Returns ``{"eps", "mean", "median", "std", "all_mean", "all_median", "null_at_base_mean", "paper_mean",
+    "unmatched_mean", "unmatched_max", "lost_mean", "pairs", "per_kind": {...}, "rows": [(kind, name, error, error_all,
     unmatched)]}`` (shares in [0, 1]).
     """
     import numpy as np
@@ -187,13 +188,15 @@ def benchmark_cycle_consistency(root: str | Path | None = None, T: int = 64, rot
         fwd = register_trees(a, b, rotation=rotation, **kwargs)
         bwd = register_trees(b, a, rotation=rotation, **kwargs)
         cc = cycle_consistency(a, b, DEFAULT_EPS, forward=fwd, backward=bwd)
-        rows.append((kind, name, cc.error.numpy(), cc.error_all.numpy(), cc.unmatched, cc.lost))
+        rows.append((kind, name, cc.error.numpy(), cc.error_all.numpy(), cc.unmatched, cc.lost,
+                     cc.error_null_at_base.numpy()))
 
     def summ(sel: list) -> dict:
         err, err_all = np.stack([r[2] for r in sel]), np.stack([r[3] for r in sel])
         return {"pairs": len(sel), "mean": err.mean(0).tolist(), "median": np.median(err, 0).tolist(),
                 "std": err.std(0).tolist(), "all_mean": err_all.mean(0).tolist(),
                 "all_median": np.median(err_all, 0).tolist(),
+                "null_at_base_mean": np.stack([r[6] for r in sel]).mean(0).tolist(),
                 "unmatched_mean": float(np.mean([r[4] for r in sel])),
                 "unmatched_max": float(np.max([r[4] for r in sel])), "lost_mean": float(np.mean([r[5] for r in sel]))}
 

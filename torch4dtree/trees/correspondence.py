@@ -14,6 +14,12 @@ How points without a full cycle count:
   ``error`` and reported as ``unmatched`` (``error_all`` counts them as failures instead);
 * points whose image lies on a branch of ``B`` matched to null by ``B -> A`` started a cycle that
   did not return: they count as failures in ``error`` and are also reported as ``lost``.
+
+``error_null_at_base`` follows the paper's model of a null branch instead (SPEC §3: a branch matched to null is
+matched to a zero-length branch at its bifurcation point on the other tree): a point on a branch without an image
+goes where its branch's null partner sits, the image of the point where the branch leaves its parent (up the
+ancestors until one has an image), on either leg of the cycle, and its cycle error is its distance from where it
+comes back. Points near the base of a null-matched branch then return within ``eps`` and points far out on it do not.
 """
 
 from __future__ import annotations
@@ -72,6 +78,8 @@ class CycleConsistency(NamedTuple):
     * ``error_all``: the same over all points, unmatched ones counted as errors.
     * ``unmatched``: share of points on branches of ``A`` matched to null (no image in ``B``).
     * ``lost``: share of mapped points whose image is matched to null in ``B -> A``.
+    * ``error_null_at_base``: ``(len(eps),)`` the share of all points failing when a point on a null-matched
+      branch maps to its null partner, at the image of its branch's base (module doc).
     * ``distance``: ``(P,)`` cycle distance of every sample point / height (``nan`` if no full cycle).
     * ``weight``: ``(P,)`` arc-length weight of every sample point.
     """
@@ -83,6 +91,7 @@ class CycleConsistency(NamedTuple):
     lost: float
     distance: Tensor
     weight: Tensor
+    error_null_at_base: Tensor
 
 
 def _height(tree: Trees) -> float:
@@ -91,6 +100,48 @@ def _height(tree: Trees) -> float:
         return h
     span = tree.points.reshape(-1, tree.dim)
     return float((span.amax(0) - span.amin(0)).norm())  # no vertical extent: use the box diagonal
+
+
+def _to_base_of_unmatched(tree: Trees, matched: set[int], branch: Tensor, t: Tensor) -> tuple[Tensor, Tensor]:
+    """Points on branches outside ``matched`` moved to where their branch leaves its parent, up the ancestors until
+    a matched branch (branch ``-1`` if even the main branch is unmatched); others unchanged."""
+    parent, s = tree.parent.tolist(), tree.s.detach().to("cpu", torch.float64).tolist()
+    base: dict[int, tuple[int, float | None]] = {}
+    for k in range(len(parent)):  # parents come first: each branch's nearest matched ancestor from its parent's
+        if k in matched:
+            base[k] = (k, None)
+        elif parent[k] < 0:
+            base[k] = (-1, None)
+        else:
+            up, at = base[parent[k]]
+            base[k] = (up, s[k] if at is None else at)
+    b_out, t_out = branch.clone(), t.clone()
+    for k in torch.unique(branch[branch >= 0]).tolist():
+        up, at = base[k]
+        if at is None and up == k:
+            continue
+        sel = branch == k
+        b_out[sel] = up
+        t_out[sel] = float("nan") if up < 0 else at
+    return b_out, t_out
+
+
+def _cycle(fwd: TreeRegistration, bwd: TreeRegistration, branch: Tensor, t: Tensor,
+           collapse: tuple[Trees, Trees] | None) -> tuple[Tensor, Tensor, Tensor]:
+    """``(b1, b2, t2)``: the points' image branch in B (``-1``: none) and where they come back in A; with ``collapse``
+    (A, B) points without an image on a leg go to their branch's base first (:func:`_to_base_of_unmatched`)."""
+    if collapse is not None:
+        branch, t = _to_base_of_unmatched(collapse[0], {i for i, _ in fwd.matches}, branch, t)
+    b1, t1 = map_points(fwd, branch.clamp(min=0), t.nan_to_num(0.0))
+    b1 = torch.where(branch >= 0, b1, torch.full_like(b1, -1))
+    if collapse is not None:
+        b1, t1 = _to_base_of_unmatched(collapse[1], {i for i, _ in bwd.matches}, b1, t1)
+    mapped = b1 >= 0
+    b2 = torch.full_like(branch, -1)
+    t2 = torch.full_like(t, float("nan"))
+    if bool(mapped.any()):
+        b2[mapped], t2[mapped] = map_points(bwd, b1[mapped], t1[mapped])
+    return b1, b2, t2
 
 
 def cycle_consistency(a: Trees, b: Trees, eps: Sequence[float] = DEFAULT_EPS,
@@ -107,25 +158,31 @@ def cycle_consistency(a: Trees, b: Trees, eps: Sequence[float] = DEFAULT_EPS,
     branch = torch.arange(N).repeat_interleave(T)
     t = torch.linspace(0, 1, T, dtype=torch.float64).repeat(N)
     weight = (a.branch_lengths().detach().to("cpu", torch.float64) / T).repeat_interleave(T)
-    b1, t1 = map_points(fwd, branch, t)
-    mapped = b1 >= 0
-    b2 = torch.full_like(branch, -1)
-    t2 = torch.full_like(t, float("nan"))
-    if bool(mapped.any()):
-        b2[mapped], t2[mapped] = map_points(bwd, b1[mapped], t1[mapped])
-    back = b2 >= 0
     x = interpolate_curve(pts[branch], t[:, None])[:, 0]
-    x2 = interpolate_curve(pts[b2.clamp(min=0)], t2.nan_to_num(0.0)[:, None])[:, 0]
-    dist = torch.where(back, (x - x2).norm(dim=-1) / _height(a), torch.full_like(t, float("nan")))
+    height = _height(a)
+
+    def distances(b2: Tensor, t2: Tensor) -> Tensor:
+        x2 = interpolate_curve(pts[b2.clamp(min=0)], t2.nan_to_num(0.0)[:, None])[:, 0]
+        return torch.where(b2 >= 0, (x - x2).norm(dim=-1) / height, torch.full_like(t, float("nan")))
+
+    b1, b2, t2 = _cycle(fwd, bwd, branch, t, None)
+    mapped, back = b1 >= 0, b2 >= 0
+    dist = distances(b2, t2)
     total = float(weight.sum())
     w_mapped = float(weight[mapped].sum())
     eps_t = torch.tensor(list(eps), dtype=torch.float64)
-    fail = (~back[None, :]) | (dist.nan_to_num(np.inf)[None, :] > eps_t[:, None])  # (E, P)
+
+    def failing(d: Tensor) -> Tensor:  # (E, P): no way back, or back too far
+        return d.nan_to_num(np.inf)[None, :] > eps_t[:, None]
+
+    fail = failing(dist)
     err_mapped = (fail & mapped[None, :]).to(torch.float64) @ weight / max(w_mapped, 1e-300)
     err_all = fail.to(torch.float64) @ weight / max(total, 1e-300)
+    _, b2n, t2n = _cycle(fwd, bwd, branch, t, (a, b))
+    err_base = failing(distances(b2n, t2n)).to(torch.float64) @ weight / max(total, 1e-300)
     return CycleConsistency(
         tuple(float(e) for e in eps), err_mapped, err_all, 1.0 - w_mapped / max(total, 1e-300),
-        float(weight[mapped & ~back].sum()) / max(w_mapped, 1e-300), dist, weight,
+        float(weight[mapped & ~back].sum()) / max(w_mapped, 1e-300), dist, weight, err_base,
     )
 
 
