@@ -45,23 +45,22 @@ REFINE = 16
 # reading is kept there (the lower distance wins), so no pair registers worse than on the samples alone.
 FINE_REFINE = 8
 BAND_NEIGHBOURHOOD = 5  # steps of the banded DPs (only with band=...): dp_warp's default
-# Growth clocks of different plants: the warp is searched twice, on the trajectories as they are, then (DP and
-# refinement again) with a time coordinate ``c t`` appended to both, ``c = TIME_WEIGHT x rho x`` their mean length in
-# R^k, ``rho = sqrt(E_plain / E_identity)`` the share of the SRVF distance the plain warp leaves. The time coordinate
-# makes the SRVF energy grow as xi departs from the identity: a penalty on warping that scales with the trajectories
-# (unitless) and with how far they are from being time warps of each other (rho = 0 for a time-warped copy, which is
-# then registered exactly as without it). Why: two plants never trace the same curve (organs start at other stages,
-# another plastochron, a side shoot more), and the plain energy's minimum fits those differences with steep jumps of
-# xi. On synthetic plants with known clocks (`evaluate --sections truth`, 6 plants x 10 frames, 3 pairs per kind,
-# seeds 0 and 1; register4d's trajectories and a ground-truth-label layout) the plain energy at the true warp is above
-# the recovered warp's on 36 of 36 pairs: the search does not miss, the objective's minimum is elsewhere. Recovered
-# clocks' mean error on register4d's trajectories, seeds 0 + 1, tomato / bean / maize: plain 0.038 / 0.039 / 0.030,
-# weight 1: 0.027 / 0.025 / 0.026 (1.5: 0.028 / 0.023 / 0.021; 2: 0.032 / 0.028 / 0.018; a fixed, non-adaptive
-# weight 1: 0.028 / 0.024 / 0.026 but the time-warped Pheno4D copies lose only 90 % of their distance, not 99.9 %).
-# On Pheno4D (Table 3) the copies with missing days are recovered better (tomato 0.038 -> 0.024, maize 0.033 ->
-# 0.016), every pair of plants is still lowered, by a little less (after / before 0.96 -> 0.97). The cost: a warp
-# between trajectories that differ AND are strongly warped is pulled toward the identity (benchmarks/README,
-# "Growth clocks"). 0 turns it off (one search, the plain energy).
+# register4d's time_weight (register_trajectories' default is 0: the plain rate-invariant distance, with which the 4D
+# mean and PCA are defined; as that default it breaks tests/test_model.py's mean of two trajectories = their midpoint).
+# With a weight, the warp is searched twice: on the trajectories as they are, then (DP and refinement again) with a
+# time coordinate ``c t`` appended to both, ``c = TIME_WEIGHT x rho x`` their mean length in R^k, ``rho =
+# sqrt(E_plain / E_identity)`` the share of the SRVF distance the plain warp leaves. The time coordinate makes the SRVF
+# energy grow as xi departs from the identity: a penalty on warping that scales with the trajectories (unitless) and
+# with how far they are from being time warps of each other (rho ~ 0 for a time-warped copy, registered as without it).
+# Why: two plants never trace the same curve (organs start at other stages, another plastochron, a side shoot more),
+# and the plain energy's minimum fits those differences with steep jumps of xi. On synthetic plants with known clocks
+# (`evaluate --sections truth`, 6 plants x 10 frames, 3 pairs per kind, seeds 0 and 1; register4d's trajectories and a
+# ground-truth-label layout) the plain energy at the true warp is above the recovered warp's on 36 of 36 pairs: the
+# search does not miss, the objective's minimum is elsewhere. Recovered clocks' mean error on register4d's
+# trajectories, seeds 0 + 1, tomato / bean / maize: plain 0.038 / 0.039 / 0.030, weight 1: 0.027 / 0.025 / 0.026
+# (1.5: 0.028 / 0.023 / 0.021; 2: 0.032 / 0.028 / 0.018; a fixed, non-adaptive weight 1: 0.028 / 0.024 / 0.026, but
+# then Pheno4D's time-warped copies lose only 90 % of their distance, not 99.9 %). Not free: trajectories that differ
+# AND are strongly warped are pulled toward the identity (benchmarks/README, "Growth clocks").
 TIME_WEIGHT = 1.0
 _UP = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)  # the kernel's vertical axis (unused without rotation)
 
@@ -175,7 +174,7 @@ def _registered(fine: Tensor, mov: Tensor, warp: Tensor, finer: Tensor | None) -
 
 def register_trajectories(alpha_ref: Tensor, alpha_mov: Tensor, neighbourhood: int = NEIGHBOURHOOD,
                           refine: int = REFINE, band: int | None = None, coarse: int | None = None,
-                          backend: str = "auto", time_weight: float = TIME_WEIGHT) -> TemporalRegistration:
+                          backend: str = "auto", time_weight: float = 0.0) -> TemporalRegistration:
     """Optimal time warps of ``alpha_mov`` onto ``alpha_ref``, batched over pairs.
 
     Args:
@@ -193,9 +192,13 @@ def register_trajectories(alpha_ref: Tensor, alpha_mov: Tensor, neighbourhood: i
             of time at ``n_t <= 64`` (module constants); the refinement moves the warp off the lattice, so
             it is not limited to the lattice's slopes. For ``n_t`` in the hundreds, a band (e.g. ``band=4,
             coarse=16``) keeps the DP's cost linear.
-        time_weight: the warp is searched on both trajectories with a time coordinate ``c t`` appended, ``c`` this
-            many times their mean length (a penalty on warping, :data:`TIME_WEIGHT`); ``0``: the plain energy. The
-            distances returned are the plain 4D distance (module doc) either way.
+        time_weight: ``0`` (default): the warp minimises the 4D distance (the rate-invariant distance of SPEC §5,
+            what the 4D mean and PCA need). ``> 0``: after that search, the warp is searched again on both
+            trajectories with a time coordinate ``c t`` appended, ``c = time_weight x rho x`` their mean length,
+            ``rho`` the share of the distance the first warp left (a penalty on warping for trajectories that are
+            not time warps of each other, such as two plants' growth: :data:`TIME_WEIGHT`, which
+            :func:`~torch4dtree.temporal.register4d` uses). The distances returned are the plain 4D distance at
+            the warp returned either way.
 
     Returns:
         :class:`TemporalRegistration`; ``distance <= distance_before`` always (the identity warp is kept
