@@ -209,7 +209,7 @@ def _deterministic() -> Iterator[None]:
 def _oracle_warp(a: Plant4D, b: Plant4D, settings: EvalSettings) -> Tensor:
     """The temporal registration of ``b`` onto ``a`` in the ground-truth (organ label) layout."""
     from ..bench.temporal import _label_features, _pca_trajectories
-    from ..temporal.registration import register_trajectories
+    from ..temporal.registration import TIME_WEIGHT, register_trajectories
 
     seqs = [a.sequence.to(torch.float64), b.sequence.to(torch.float64)]
     # a label may name several branches of a frame (spurs, organs the rule split): _label_features writes them
@@ -219,7 +219,7 @@ def _oracle_warp(a: Plant4D, b: Plant4D, settings: EvalSettings) -> Tensor:
         feats = _label_features(seqs, seqs[0].frames.T)
     k = min(ORACLE_COMPONENTS, sum(len(s) for s in seqs) - 1)
     ta, tb = _pca_trajectories(feats, [s.times for s in seqs], k, settings.n_t)
-    return register_trajectories(ta, tb).warp
+    return register_trajectories(ta, tb, time_weight=TIME_WEIGHT).warp  # register4d's temporal step
 
 
 def _growth_warp(a: Plant4D, b: Plant4D, al_a: Any, al_b: Any, settings: EvalSettings, rotation: str

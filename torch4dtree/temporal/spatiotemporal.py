@@ -21,9 +21,10 @@ The pipeline, for 4D trees ``A`` (reference) and ``B`` (moving):
 3. **Tree space**: PCA of all frames' weighted SRVFT features (all components by default, so coefficient
    distances are exactly tree distances); each 4D tree becomes a trajectory in ``R^k``, resampled at ``n_t``
    equally spaced normalised times between its actual frame times.
-4. **Temporal registration** (:func:`register_trajectories`): the optimal time warp of ``B``'s trajectory onto
-   ``A``'s and the rate-invariant distance. ``B``'s trajectory is passed :func:`~.trajectory.fine_size` samples, so
-   the warp moves ``B``'s frames (the corners of its trajectory), not only its ``n_t`` samples.
+4. **Temporal registration** (:func:`register_trajectories`): the time warp of ``B``'s trajectory onto ``A``'s, with
+   a penalty on warping (``time_weight``: two plants are not time warps of each other), and the 4D distance at it.
+   ``B``'s trajectory is passed :func:`~.trajectory.fine_size` samples, so the warp moves ``B``'s frames (the corners
+   of its trajectory), not only its ``n_t`` samples.
 
 The three distances reported are the same 4D distance, ``sqrt(||alpha_A(0) - alpha_B(0)||^2 + ||q_A - q_B||^2)``
 with ``q`` the SRVF of the trajectory: before any registration (``B``'s slots matched to ``A``'s in index order,
@@ -44,7 +45,7 @@ from ..space.pca import TreePCA
 from ..trees.aligned import AlignedTrees
 from ..trees.registration import POSITIONS, effective_lambdas, index_order_matches, register_trees
 from ..trees.structures import Trees, TreeSequence
-from .registration import TemporalRegistration, geodesic4d, register_trajectories, trajectory_distance
+from .registration import TIME_WEIGHT, TemporalRegistration, geodesic4d, register_trajectories, trajectory_distance
 from .trajectory import fine_size, resample_trajectory, trajectory_srvf
 from .within import AlignedSequence, _inverse_at, register_sequence
 
@@ -333,7 +334,8 @@ def register4d(reference: TreeSequence | AlignedSequence, moving: TreeSequence |
                lambdas: Sequence[float] = (1.0, 1.0, 1.0), rotation: str = "none", n_t: int = DEFAULT_NT,
                n_components: int | None = None, progress: bool = False,
                fallback_rotation: str | None = FALLBACK_ROTATION, positions: str = CROSS_POSITIONS,
-               cross_lp: float | None = CROSS_LP, **registration_kwargs: object) -> SpatiotemporalRegistration:
+               cross_lp: float | None = CROSS_LP, time_weight: float = TIME_WEIGHT,
+               **registration_kwargs: object) -> SpatiotemporalRegistration:
     """Register the 4D tree ``moving`` (``B``) onto ``reference`` (``A``) in space and time (module doc).
 
     Args:
@@ -354,6 +356,9 @@ def register4d(reference: TreeSequence | AlignedSequence, moving: TreeSequence |
             The within-sequence registrations keep their own.
         cross_lp: the cross-sequence registration's relative ``lp`` (``None``: ``lambdas[2]``); the 4D distance
             keeps ``lambdas``. Default :data:`CROSS_LP`.
+        time_weight: the temporal registration's penalty on warping (:func:`register_trajectories`); default
+            :data:`~torch4dtree.temporal.registration.TIME_WEIGHT` (two plants are not time warps of each other: their
+            recovered growth clocks are closer to the true ones with it); ``0``: the warp minimising the 4D distance.
         registration_kwargs: passed to the tree registrations (DP settings, ``up``...).
 
     Returns:
@@ -421,7 +426,7 @@ def register4d(reference: TreeSequence | AlignedSequence, moving: TreeSequence |
     pca, alpha_a, alpha_b = _trajectories(after, n_ref, A.times, B.times, n_t, n_components, fine)
     seconds["tree_space"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    temporal = register_trajectories(alpha_a, alpha_b)
+    temporal = register_trajectories(alpha_a, alpha_b, time_weight=time_weight)
     d_spatial = float(temporal.distance_before)
     seconds["temporal"] = time.perf_counter() - t0
     times = torch.linspace(0, 1, n_t, dtype=alpha_a.dtype)
