@@ -149,15 +149,14 @@ def _prepare(tree: Trees, lambdas: Lambdas, positions: str = "warped") -> _Tree:
 
 # positions="rank": siblings closer than RANK_NODE_TOL (fraction of the parent's length) along their parent form one
 # node; a node counts 1 - exp(-(l / (RANK_SIGNIFICANT * L_parent))^2) towards the ranks above it, l its largest
-# subtree's total length (a skeleton spur a few % of the parent long barely counts, an organ counts 1); one node
-# is RANK_UNIT in the position term (comparable with a fraction of the parent)
+# subtree's total length (a skeleton spur a few % of the parent long barely counts, an organ counts 1). A node is
+# one unit in the position term: with lp relative, a child one node off costs lp x RELATIVE_LP_SCALE x L.
 RANK_NODE_TOL = 0.02
 RANK_SIGNIFICANT = 0.1
-RANK_UNIT = 0.1
 
 
 def _node_ranks(s_arc: np.ndarray, parent: list[int], children: list[list[int]], lengths: np.ndarray) -> np.ndarray:
-    """Children's positions as ``RANK_UNIT`` x the weighted count of nodes below them on their parent (``s_arc``:
+    """Children's positions as the weighted count of nodes below them on their parent (``s_arc``:
     arc-length fractions; siblings of one node share a rank). Plants of one kind at different stages share their
     basal nodes (node k of one is node k of the other), while the arc length of node k grows with the internodes
     below it and a fraction of the parent shifts as the parent elongates."""
@@ -174,7 +173,7 @@ def _node_ranks(s_arc: np.ndarray, parent: list[int], children: list[list[int]],
         below = 0.0
         for grp in _order_groups(s_arc[ch_arr], RANK_NODE_TOL):
             members = ch_arr[grp]
-            out[members] = RANK_UNIT * below
+            out[members] = below
             below += 1.0 - math.exp(-((float(total[members].max()) / scale) ** 2))
     return out
 
@@ -797,7 +796,13 @@ def register_to_reference(trees: Trees, reference: Trees, lambdas: Sequence[floa
             identities across plants at different stages (:mod:`torch4dtree.bench.hierarchy`): bean plants
             otherwise register one trifoliate node shifted and turned by 180 degrees, at a lower distance than
             the true correspondence. Not symmetric in the pair (the reference parent's length is the unit);
-            the moving tree's ``s`` in ``aligned`` are then on the reference's scale.
+            the moving tree's ``s`` in ``aligned`` are then on the reference's scale. ``"rank"``: its node rank,
+            the weighted count of nodes below it on its parent (siblings within 2 % of the parent's length are one
+            node; a node counts ~1 if its largest subtree is longer than 10 % of the parent, a short spur ~0): plants
+            of a kind at
+            different stages share their basal nodes, while arc lengths stretch with the internodes and young
+            organs ride the apex. Best measured across plants with ``lp`` 12 and ``order_tol`` (bean 93.5 / 98.8 %
+            precision / recall on 180 pairs, :mod:`torch4dtree.bench.hierarchy`); ``aligned``'s ``s`` are ranks.
         order_tol: ``None`` (default, SPEC §3): the side subtrees of each node are matched by one linear assignment,
             any permutation. A number (e.g. :data:`ORDER_TOL`): order-preserving matching, for frames of one
             growing plant, whose organs never pass each other along a parent: the matched children keep their
