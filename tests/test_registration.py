@@ -647,8 +647,9 @@ def _comb(nodes, spur_at=None):
 
 
 def test_rank_positions_count_nodes_not_arc_length():
-    """Node ranks: opposite leaves share a rank, a node counts ~1 whatever the internodes' lengths (the same plant
-    with its stem stretched above the first node has the same ranks), a short spur barely counts."""
+    """Node ranks of the main branch's children: opposite leaves share a rank, a node counts ~1 whatever the
+    internodes' lengths (the same plant with its stem stretched above the first node has the same ranks), a short
+    spur barely counts."""
     from torch4dtree.trees.registration import _prepare
 
     def ranks(tree):
@@ -662,3 +663,9 @@ def test_rank_positions_count_nodes_not_arc_length():
     spur = ranks(_comb([20.0, 20.0, 40.0, 60.0], spur_at=10.0))
     shift = np.sort(spur)[1:] - r  # the spur is the lowest node: every leaf moves up by its small weight
     assert np.allclose(shift, shift[0], atol=1e-9) and 0.0 < shift[0] < 0.02, spur
+    # deeper children (on side branches) keep their arc-length fractions
+    tree = random_tree(np.random.default_rng(3), T=32)
+    rank, arc = (_prepare(tree, (1.0, 1.0, 1.0), p) for p in ("rank", "arclength"))
+    deeper = [i for i, p in enumerate(rank.parent) if p > 0]
+    assert deeper and np.array_equal(rank.s[deeper], arc.s[deeper])
+    assert not np.allclose(rank.s[rank.children[0]], arc.s[rank.children[0]])
