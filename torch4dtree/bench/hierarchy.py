@@ -67,7 +67,7 @@ def day_pairs(root: str | Path) -> list[tuple[str, Path, Path]]:
 
 JOINT = "straightest, joint over time"
 
-# Cross-plant registrations in identity_accuracy: children compared by node rank along the parent (positions="rank":
+# Cross-plant registrations in identity_accuracy: the main branch's children compared by node rank (positions="rank":
 # the weighted count of nodes below a child), a strong position weight (lp per main-branch length: one node off
 # costs 1.2 x L) and order-preserving children's matching. Plants of a kind compared at one calendar frame are at
 # different developmental stages: shape matches organs of similar age, so a bean plant one trifoliate ahead
@@ -79,10 +79,9 @@ JOINT = "straightest, joint over time"
 # 6-11, synthetic_dataset(kind, 6, 0) and (kind, 6, 1); precision / recall %, pooled over the four):
 #   bean    arclength lp 60: 86.9/91.0 (sets 86.7/90.8, 87.4/88.1, 82.7/89.0, 91.5/96.3); + ordered 90.0/91.4;
 #           arclength lp 120 / 240 + ordered: 92.1/90.0 / 92.5/84.5 (recall lost on young organs);
-#           rank lp 6 (any order): 90.0/98.3 (d0 84.9/94.9); rank lp 6 + ordered 91.7/98.7;
-#           rank lp 12 + ordered: 93.5/98.8 (sets 100/99.1, 91.3/98.7, 91.3/98.4, 91.6/98.9)
-#   tomato  arclength lp 60: 92.7/93.3 (sets down to 89.6/92.0); rank lp 6 + ordered 95.1/94.2
-#   maize   arclength lp 60: 100/99.9; rank lp 6 + ordered 100/100
+#           rank lp 12 + ordered: 92.9/99.8 (sets 95.5/100, 92.5/100, 91.3/99.4, 92.5/100)
+#   tomato  arclength lp 60: 92.7/93.3 (sets down to 89.6/92.0); rank lp 12 + ordered 95.5/98.7
+#   maize   arclength lp 60: 100/99.9; rank lp 12 + ordered 100/100
 # (benchmarks/README.md, "Cross-plant identities", has the rest.) Consecutive frames keep the within-sequence
 # setting (warped, lp 9): their young organs move along the stem.
 CROSS_PLANT_LP = 12.0

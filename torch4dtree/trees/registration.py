@@ -803,7 +803,7 @@ def register_to_reference(trees: Trees, reference: Trees, lambdas: Sequence[floa
             node; a node counts ~1 if its largest subtree is longer than 10 % of the main branch, a short spur ~0;
             deeper children: their arc-length fraction of the parent): plants of a kind at
             different stages share their basal nodes, while arc lengths stretch with the internodes and young
-            organs ride the apex. Best measured across plants with ``lp`` 12 and ``order_tol`` (bean 93.5 / 98.8 %
+            organs ride the apex. Best measured across plants with ``lp`` 12 and ``order_tol`` (bean 92.9 / 99.8 %
             precision / recall on 180 pairs, :mod:`torch4dtree.bench.hierarchy`); ``aligned``'s ``s`` are ranks.
         order_tol: ``None`` (default, SPEC §3): the side subtrees of each node are matched by one linear assignment,
             any permutation. A number (e.g. :data:`ORDER_TOL`): order-preserving matching, for frames of one
