@@ -613,15 +613,16 @@ def test_rotation_starts_spread_over_a_full_turn(rotation):
 # ----------------------------------------------------------------------------- positions by arc length
 
 
-def test_arclength_positions_ignore_parametrisation():
+@pytest.mark.parametrize("positions", ["arclength", "rank"])
+def test_arclength_positions_ignore_parametrisation(positions):
     """A copy with every branch strongly reparameterised and siblings reordered: with children placed by arc
-    length the same geometry has the same positions, so every branch is found and the positions cost nothing
-    (the distance is that with lp = 0, the shape residual of the discrete warps alone)."""
+    length (or by node rank) the same geometry has the same positions, so every branch is found and the positions
+    cost nothing (the distance is that with lp = 0, the shape residual of the discrete warps alone)."""
     rng = np.random.default_rng(2)
     A = random_tree(rng, n_side=(6, 8), T=32)
     B = transformed_copy(A, torch.Generator().manual_seed(2), "none", strength=1.2)
-    r = register_trees(B, A, lambdas=(1.0, 1.0, 9.0), neighbourhood=6, positions="arclength")
-    shape_only = register_trees(B, A, lambdas=(1.0, 1.0, 0.0), neighbourhood=6, positions="arclength")
+    r = register_trees(B, A, lambdas=(1.0, 1.0, 9.0), neighbourhood=6, positions=positions)
+    shape_only = register_trees(B, A, lambdas=(1.0, 1.0, 0.0), neighbourhood=6, positions=positions)
     assert branch_accuracy(r, B, A) == 1.0
     assert float(r.distance) < 0.2 * float(r.distance_before)
     assert abs(float(r.distance) - float(shape_only.distance)) < 0.01 * float(shape_only.distance)
@@ -657,3 +658,43 @@ def test_arclength_positions_keep_bean_identities_across_plants():
     assert p_arc >= 0.9 and r_arc >= 0.85, (p_arc, r_arc)
     p_warp, _ = pooled("warped", 45.0)
     assert p_warp < p_arc - 0.5, (p_warp, p_arc)  # the failure the option exists for
+
+
+def _comb(nodes, spur_at=None):
+    """A vertical stem of 100 with one horizontal 30-long leaf at each height in ``nodes`` (a list of heights; a
+    height twice: two opposite leaves at one node) and optionally a 1-long spur at height ``spur_at``."""
+    stem = np.stack([np.zeros(41), np.zeros(41), np.linspace(0.0, 100.0, 41)], 1)
+    br, par = [stem], [-1]
+    for k, z in enumerate(nodes):
+        side = -1.0 if nodes[:k].count(z) else 1.0
+        br.append(np.stack([np.linspace(0.0, 30.0 * side, 11), np.zeros(11), np.full(11, z)], 1))
+        par.append(0)
+    if spur_at is not None:
+        br.append(np.stack([np.zeros(3), np.linspace(0.0, 1.0, 3), np.full(3, spur_at)], 1))
+        par.append(0)
+    return Trees.from_branches([br], [par], T=T, dtype=torch.float64)
+
+
+def test_rank_positions_count_nodes_not_arc_length():
+    """Node ranks of the main branch's children: opposite leaves share a rank, a node counts ~1 whatever the
+    internodes' lengths (the same plant with its stem stretched above the first node has the same ranks), a short
+    spur barely counts."""
+    from torch4dtree.trees.registration import _prepare
+
+    def ranks(tree):
+        t = _prepare(tree, (1.0, 1.0, 1.0), "rank")
+        return t.s[t.children[0]]
+
+    r = ranks(_comb([20.0, 20.0, 40.0, 60.0]))
+    assert r[0] == r[1] == 0.0 and np.allclose(r[2:], [1.0, 2.0], atol=1e-3), r
+    stretched = ranks(_comb([20.0, 20.0, 55.0, 90.0]))
+    assert np.allclose(stretched, r, atol=1e-3), (stretched, r)
+    spur = ranks(_comb([20.0, 20.0, 40.0, 60.0], spur_at=10.0))
+    shift = np.sort(spur)[1:] - r  # the spur is the lowest node: every leaf moves up by its small weight
+    assert np.allclose(shift, shift[0], atol=1e-9) and 0.0 < shift[0] < 0.02, spur
+    # deeper children (on side branches) keep their arc-length fractions
+    tree = random_tree(np.random.default_rng(3), T=32)
+    rank, arc = (_prepare(tree, (1.0, 1.0, 1.0), p) for p in ("rank", "arclength"))
+    deeper = [i for i, p in enumerate(rank.parent) if p > 0]
+    assert deeper and np.array_equal(rank.s[deeper], arc.s[deeper])
+    assert not np.allclose(rank.s[rank.children[0]], arc.s[rank.children[0]])

@@ -93,8 +93,8 @@ class Population(FittedModule):
             registration of all ``N``).
         registration: keyword arguments of the tree registrations (``neighbourhood``, ``n_starts``...).
         positions, cross_lp: the cross-sequence registrations' (medoid, union, :meth:`transform`) positions
-            (``"warped"`` or ``"arclength"``) and relative ``lp`` (``None``: ``lambdas[2]``; the space's metric
-            keeps ``lambdas``), as in :func:`~torch4dtree.temporal.register4d`. Within a sequence,
+            (``"warped"``, ``"arclength"`` or ``"rank"``) and relative ``lp`` (``None``: ``lambdas[2]``; the space's
+            metric keeps ``lambdas``), as in :func:`~torch4dtree.temporal.register4d`. Within a sequence,
             :func:`register_sequence` keeps its own.
 
     Fitted buffers: ``ref_points (S, T, d)``, ``ref_parent (S,)``, ``ref_s (S,)`` (the union representative,
