@@ -284,16 +284,13 @@ class Population(FittedModule):
         return movs, union, regs
 
     # ------------------------------------------------------------------------ transform
-    def transform(self, sequence: TreeSequence, aligned: AlignedSequence | None = None,
-                  reference: Trees | None = None) -> SequenceEncoding:
+    def transform(self, sequence: TreeSequence, aligned: AlignedSequence | None = None) -> SequenceEncoding:
         """Write a new 4D tree into the fitted space (module doc): within-sequence registration, registration of
         its representative onto the union representative, its frames in the layout, their coefficients and
         trajectory.
 
         ``aligned``: its within-sequence registration, if already computed. A single frame is allowed (its
-        trajectory is then constant). ``reference``: another tree in the layout to register the representative
-        onto (one tree whose ``label`` is each branch's slot, e.g. :meth:`TreePCA.decode` of a frame's
-        coefficients); default the union representative.
+        trajectory is then constant).
         """
         self._check_fitted()
         if not isinstance(sequence, TreeSequence):
@@ -308,12 +305,11 @@ class Population(FittedModule):
         if aligned is None:
             aligned = register_sequence(seq, **self.registration)  # as in fit
         rep = representative_tree(aligned)
-        ref = self.reference_tree() if reference is None else reference.to(dtype=torch.float64)
+        ref = self.reference_tree()
         reg = register_to_reference(rep, ref, self.cross_lambdas_, self.rotation, lp_relative=False, symmetric=False,
                                     positions=self.positions, **self.registration)[0]
-        S_r = self.ref_points.shape[0]
-        slot = ref.label.tolist()
-        matched = {k: slot[b] for k, b in reg.matches}
+        S_r = ref.points.shape[0]
+        matched = dict(reg.matches)
         S_m = aligned.num_slots
         # unmatched slots go to scratch slots past the layout, then are cut off (and their cost reported)
         slot_of, extra = [], S_r
