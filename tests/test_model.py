@@ -243,11 +243,11 @@ def test_forecast_shapes(model: FourDTreeModel, plants: list) -> None:
 
 def _analogue_term(model: FourDTreeModel, seq, observed: int, times: torch.Tensor) -> torch.Tensor | float:
     """The forecast's analogue term of ``seq`` observed over its first ``observed`` frames (0 where it is off)."""
-    width, weight = model.forecast_analogue.tolist()
+    width, weight, null = model.forecast_analogue.tolist()
     if weight == 0:
         return 0.0
     dist = model._analogue_distances(seq.frames[observed - 1], float(seq.times[observed - 1] - seq.times[0]))
-    return weight * model._analogue(dist, times - seq.times[0], width)
+    return weight * model._analogue(dist, times - seq.times[0], width, null)
 
 
 def test_forecast_carries_the_plants_own_deviation(model: FourDTreeModel, plants: list) -> None:
@@ -285,13 +285,16 @@ def test_forecast_analogue_term_follows_the_nearest_training_plant(model: FourDT
         assert d.shape == (3,) and int(d.argmin()) == j, d
         assert torch.isinf(model._analogue_distances(seq.frames[1], age, exclude=j)[j])
         own = model._training_at_age(ages)[j] - model._mean_at_age(ages, 0.0)
-        assert torch.allclose(model._analogue(d, ages, 1e-9 * float(d.min()) ** 2), own, atol=1e-9)
+        narrow = 1e-9 * float(d.min()) ** 2
+        assert torch.allclose(model._analogue(d, ages, narrow, math.inf), own, atol=1e-9)
+        # the 4D mean's pseudo-plant nearer than every training plant: the term vanishes
+        assert float(model._analogue(d, ages, narrow, 0.25 * float(d.min()) ** 2).abs().max()) < 1e-9
     # the weight comes from the fit's leave-one-out choice among FORECAST_SHRINK
     from torch4dtree.model.fourd import FORECAST_SHRINK
 
     report = model.report_["forecast"]
-    assert report["analogue"] in FORECAST_SHRINK and report["analogue"] > 0 and model.forecast_analogue.tolist() == [report["width"],
-                                                                                           report["analogue"]]
+    assert report["analogue"] in FORECAST_SHRINK and report["analogue"] > 0
+    assert model.forecast_analogue.tolist() == [report["width"], report["analogue"], report["null"]]
     # an older checkpoint (no forecast_analogue): the 4D mean plus the gains' term alone
     path = tmp_path / "model.pt"
     model.save(str(path))
@@ -299,7 +302,7 @@ def test_forecast_analogue_term_follows_the_nearest_training_plant(model: FourDT
     del raw["state_dict"]["forecast_analogue"]
     torch.save(raw, path)
     old = load(path)
-    assert old.forecast_analogue.tolist() == [0.0, 0.0]
+    assert old.forecast_analogue.tolist() == [0.0, 0.0, 0.0]
     seq = plants[3]
     f_old = old.forecast(seq[[0, 1]], seq.times[2:], decode=False)
     f_new = model.forecast(seq[[0, 1]], seq.times[2:], decode=False)
