@@ -270,8 +270,8 @@ class FourDTreeModel(nn.Module):
         issue 13) and in-sample deviations over-promise. Plant ``i``'s features (its first half encoded alone, and
         its later frames as its whole sequence wrote them) are therefore projected onto the principal subspace of
         the *other* plants' frames (the same variance share or number of components as the fit) before they are
-        written in the model's coordinates. (Without this the left-out errors chose the 4D mean alone on 4 of 6
-        tomato datasets, where both terms won on held-out plants.)
+        written in the model's coordinates. (Without this the left-out errors left the analogue term out on 4 of
+        tomato seeds 3-8; on held-out plants it would have won on 3 of those 4.)
 
         * Gains: per component ``beta_c = sum f_c d_c / sum d_c^2`` clipped to ``[0, 1]`` (:func:`persistence_betas`:
           ``d`` the observed deviation at the last observed frame, ``f`` the later ones; plant ``i`` forecast with
