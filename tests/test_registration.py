@@ -523,15 +523,20 @@ def test_children_refit_is_skipped_where_the_position_terms_are_negligible(monke
     assert float(r.distance) == float(r0.distance)
 
 
+def _tree_and_copy_with_extra_branch() -> tuple[Trees, Trees, int]:
+    """A random tree ``A``; ``B``: a reparameterised copy with one more branch; the index of that branch in ``B``."""
+    A = random_tree(np.random.default_rng(4))
+    B0 = random_tree(np.random.default_rng(4), extra=(0.6, 7.0))
+    B, _ = transformed_copy_truth(B0, torch.Generator().manual_seed(4), "none", strength=0.5)
+    return A, B, int((B.label == int(B.num_branches[0]) - 1).nonzero()[0])
+
+
 def test_cycle_consistency_bookkeeping_with_known_answers():
     """Shares with known values: B is A plus one branch, reparameterised. B's extra branch has no image
     (``unmatched`` = its share of B's length), the other points return up to the warps' residual; ``error_all``
     counts the unmatched points as failures (= error (1 - unmatched) + unmatched at every eps), errors fall
     with eps, and at a huge eps only the lost points fail. Labels only in one tree count right when unmatched."""
-    A = random_tree(np.random.default_rng(4))
-    B0 = random_tree(np.random.default_rng(4), extra=(0.6, 7.0))
-    B, _ = transformed_copy_truth(B0, torch.Generator().manual_seed(4), "none", strength=0.5)
-    extra = int((B.label == int(B.num_branches[0]) - 1).nonzero()[0])
+    A, B, extra = _tree_and_copy_with_extra_branch()
     eps = (1e9, 0.1, 0.02, 0.0)
     cc = cycle_consistency(B, A, eps=eps)
     lengths = B.branch_lengths()
@@ -559,10 +564,7 @@ def test_cycle_consistency_with_null_branches_at_their_base():
     branch's base, and comes back near the base: it fails at eps exactly when it lies farther than eps x height from
     the base (up to the base's own cycle residual), while ``error_all`` fails it at every eps; points with an image
     count as in ``error``. At a huge eps nothing fails."""
-    A = random_tree(np.random.default_rng(4))
-    B0 = random_tree(np.random.default_rng(4), extra=(0.6, 7.0))
-    B, _ = transformed_copy_truth(B0, torch.Generator().manual_seed(4), "none", strength=0.5)
-    extra = int((B.label == int(B.num_branches[0]) - 1).nonzero()[0])
+    A, B, extra = _tree_and_copy_with_extra_branch()
     eps = (1e9, 0.3, 0.1, 0.05)
     cc = cycle_consistency(B, A, eps=eps)
     base_np = cc.error_null_at_base.numpy()
