@@ -20,6 +20,7 @@ from typing import Any, NamedTuple
 import torch
 from torch import Tensor, nn
 
+from ..space.pca import variance_components
 from ..temporal.population import Population
 from ..temporal.registration import time_warp_trajectory
 from ..temporal.spatiotemporal import CROSS_LP, CROSS_POSITIONS
@@ -533,10 +534,7 @@ def _subspace_projector(x: Tensor, n_components: int | None, variance: float) ->
     mean = x.mean(0)
     _, sing, vh = torch.linalg.svd(x - mean, full_matrices=False)
     var = sing.square()
-    if n_components is not None:
-        k = min(n_components, len(var))
-    else:
-        k = min(int((var.cumsum(0) / var.sum().clamp_min(1e-300) < variance - 1e-12).sum()) + 1, len(var))
+    k = min(n_components, len(var)) if n_components is not None else variance_components(var, variance)
     basis = vh[:k]
     return lambda y: mean + (y - mean) @ basis.T @ basis
 

@@ -15,7 +15,7 @@ import torch
 from torch import Tensor
 
 from ..space.fitted import FittedModule, NotFittedError
-from ..space.pca import check_components
+from ..space.pca import check_components, variance_components
 from ..temporal.registration import TemporalRegistration, register_trajectories, time_warp_trajectory
 from ..temporal.trajectory import trajectory_from_srvf, trajectory_srvf
 from ..temporal.within import _inverse_at
@@ -202,12 +202,8 @@ class TrajectoryPCA(FittedModule):
         var = sing.square() / (N - 1)
         total = float(var.sum())
         ratio = var / total if total > 0 else torch.zeros_like(var)
-        if self.n_components is not None:
-            m = min(self.n_components, len(var))
-        elif total > 0:
-            m = min(int((ratio.cumsum(0) < self.variance - 1e-12).sum()) + 1, len(var))
-        else:
-            m = 1
+        m = min(self.n_components, len(var)) if self.n_components is not None else \
+            variance_components(var, self.variance)
         comps = Vh[:m]
         big = comps.abs().argmax(1, keepdim=True)
         comps = comps * torch.sign(comps.gather(1, big))

@@ -27,6 +27,15 @@ __all__ = ["TreePCA"]
 DECODE_MIN_FRACTION = 0.01
 
 
+def variance_components(var: Tensor, variance: float) -> int:
+    """The smallest ``k`` whose leading variances ``var`` (descending) reach the share ``variance`` of their sum (a
+    rounding margin so that an exact share counts as reached); 1 if they sum to 0."""
+    total = float(var.sum())
+    if not total > 0:
+        return 1
+    return min(int((var.cumsum(0) / total < variance - 1e-12).sum()) + 1, len(var))
+
+
 def check_components(n_components: int | None, variance: float) -> tuple[int | None, float]:
     """Validate a PCA's ``k`` (None or a positive int) and variance share (in ``(0, 1]``)."""
     if n_components is not None and (isinstance(n_components, bool) or int(n_components) < 1):
@@ -142,8 +151,8 @@ class TreePCA(FittedModule):
             k = self.n_components
             if k > len(var):
                 raise ValueError(f"n_components={k} > min(n_trees, n_features) = {len(var)}")
-        else:  # smallest k reaching the share (a rounding margin so that an exact share counts as reached)
-            k = min(int((ratio.cumsum(0) < self.variance - 1e-12).sum()) + 1, len(var))
+        else:
+            k = variance_components(var, self.variance)
         comps = Vh[:k]
         big = comps.abs().argmax(1, keepdim=True)
         comps = comps * torch.sign(comps.gather(1, big))  # deterministic signs
