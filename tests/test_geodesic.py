@@ -79,3 +79,32 @@ def test_decode_interpolated_s_on_parent():
     for i in range(1, int(tree.num_branches[0])):
         on = interpolate_curve(main[None], tree.s[i].reshape(1, 1))[0, 0]
         assert torch.allclose(on, tree.points[i, 0], atol=1e-6)
+
+
+@pytest.mark.parametrize("positions", ["arclength", "rank"])
+def test_geodesic_of_registrations_comparing_other_positions(positions):
+    """Registrations that compare children by arc length or node rank still write bifurcation parameters in their
+    layout: the geodesic's ends are the two trees (children at their own places, not at a rank or an arc length
+    read as a parameter), its midpoints keep every child on its parent, and the distance is the one with the
+    compared positions (the layout's own, with warped positions, differs by the position terms only)."""
+    rng = np.random.default_rng(15)
+    A = random_tree(rng, n_side=(4, 5), T=24)
+    B = random_tree(rng, n_side=(4, 5), T=24)
+    assert len(set(B.s.tolist())) == len(B.s)  # no tied siblings: the decoded reference keeps B's branch order
+    r = register_trees(A, B, positions=positions)
+    path = geodesic(r, 3)
+    _same_tree(path[2], B.to(torch.float64))
+    first = path[0]
+    matched_parent = {a for a, _ in r.matches}
+    for i, label in enumerate(first.label.tolist()):  # children of unmatched parents keep A's own parameter
+        a = int(r.aligned.source[0, label])
+        if a > 0 and int(A.parent[a]) not in matched_parent:
+            assert float(first.s[i]) == pytest.approx(float(A.s[a]), abs=1e-3)  # decoding re-resamples
+    assert bool((path.s >= 0).all() and (path.s <= 1).all())
+    side = path.parent >= 0
+    assert torch.allclose(path.points[side, 0], path.attachment_points()[side], atol=1e-6)
+    assert torch.allclose(first.total_length(), A.total_length().double(), rtol=1e-2)
+    layout_distance = (r.aligned.features()[0] - r.aligned.features()[1]).norm()
+    shapes_only = layout_distance.square() - (r.aligned.s[0, 1:] - r.aligned.s[1, 1:]).square().mul(
+        r.aligned.weights()[1][1:]).sum()
+    assert float(r.distance.square()) >= float(shapes_only) - 1e-9

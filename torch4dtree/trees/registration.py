@@ -45,7 +45,7 @@ import hashlib
 import math
 import os
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import NamedTuple
 
 import numpy as np
@@ -75,8 +75,9 @@ __all__ = [
 class TreeRegistration(NamedTuple):
     """Result of :func:`register_trees` (moving tree with ``Nm`` branches, ``T`` points per branch).
 
-    * ``distance``: scalar, the registered distance ``||f(moving*) - f(reference)||`` (metric of SPEC §3);
-      differentiable in the input points given the discrete choices.
+    * ``distance``: scalar, the registered distance ``||f(moving*) - f(reference)||`` (metric of SPEC §3, with the
+      children's positions compared as the registration's ``positions`` says); differentiable in the input points
+      given the discrete choices.
     * ``distance_before``: scalar, the index-order distance (children matched by order of ``s``, extra
       ones to null, identity warps and rotation).
     * ``rotation``: ``(d, d)`` acting on row vectors of the moving tree as ``x @ O.T`` (about its root).
@@ -85,7 +86,9 @@ class TreeRegistration(NamedTuple):
       branches (depth-first order), the main branches first.
     * ``unmatched_moving`` / ``unmatched_reference``: branches matched to a null branch.
     * ``aligned``: :class:`AlignedTrees` with 2 trees in one layout: ``[registered moving, reference]``
-      (reference's slots first, in its packed order, then slots for the moving tree's unmatched branches).
+      (reference's slots first, in its packed order, then slots for the moving tree's unmatched branches); its
+      ``s`` are bifurcation parameters whatever the ``positions`` compared (with ``"warped"``, the default,
+      ``distance`` is its features' distance).
     * ``used_index_order``: the index-order solution was better than the optimised one and was kept.
     """
 
@@ -109,7 +112,8 @@ class _Tree:
 
     points: Tensor  # (N, T, d), as given (keeps autograd)
     q: Tensor  # (N, M, d) float64, detached
-    s: np.ndarray  # (N,)
+    s: np.ndarray  # (N,) the compared positions (see _prepare)
+    frac: np.ndarray  # (N,) the tree's own bifurcation parameters (what a layout is decoded with)
     parent: list[int]
     children: list[list[int]]  # sorted by s
     depth: list[int]
@@ -126,7 +130,8 @@ def _prepare(tree: Trees, lambdas: Lambdas, positions: str = "warped") -> _Tree:
     # the discrete solve (DP warps, assignments) runs on the CPU; results go back to the input's device
     q = srvf(tree.points.detach().cpu().to(torch.float64))
     parent = tree.parent.tolist()
-    s = tree.s.detach().cpu().to(torch.float64).numpy().copy()
+    frac = tree.s.detach().cpu().to(torch.float64).numpy()
+    s = frac.copy()
     children: list[list[int]] = [[] for _ in parent]
     for i, p in enumerate(parent):
         if p >= 0:
@@ -143,7 +148,7 @@ def _prepare(tree: Trees, lambdas: Lambdas, positions: str = "warped") -> _Tree:
                 s[i] = np.interp(s[i], grid, arc[p]) / max(float(arc[p, -1]), 1e-12)
         if positions == "rank":
             s = _node_ranks(s, parent, children, lengths)
-    return _Tree(tree.points, q, s, parent, children, tree.depth.tolist(), np.sqrt(lengths),
+    return _Tree(tree.points, q, s, frac, parent, children, tree.depth.tolist(), np.sqrt(lengths),
                  np.asarray(subtree_sq_norms(lengths.tolist(), parent, lambdas)))
 
 
@@ -649,12 +654,15 @@ def index_order_matches(moving: Trees, reference: Trees) -> list[tuple[int, int]
 
 
 def _build_aligned(mov: _Tree, ref: _Tree, match: dict[int, int], gamma: np.ndarray, O: Tensor,
-                   lambdas: Lambdas, positions: str = "warped") -> AlignedTrees:
+                   lambdas: Lambdas, positions: str = "warped") -> tuple[AlignedTrees, Tensor]:
     """Write the registered moving tree and the reference in one layout (differentiable in the points).
 
-    With ``"arclength"`` / ``"rank"`` positions both trees' ``s`` are the compared positions (arc lengths on the
-    reference parent's scale, node ranks: :func:`_child_positions`), so the layout's features give the registered
-    distance; decode the trees from their own points, not from this layout."""
+    Returns the layout and the ``(2, S)`` positions the registration compared. The layout's ``s`` are always
+    bifurcation parameters on the parents (a moving child at ``gamma^{-1}(s)`` of its matched parent's warp), so
+    it decodes to the trees and its geodesic to trees in between. With ``"arclength"`` / ``"rank"`` positions the
+    compared ones differ (arc lengths on the reference parent's scale, node ranks: :func:`_child_positions`): the
+    registered distance is the layout's with them in place of ``s`` (:func:`_pair_distance`); with ``"warped"``
+    they are the layout's ``s``."""
     Nm, Nr = len(mov.parent), len(ref.parent)
     dtype = torch.float64
     pts_m = mov.points.to(dtype)
@@ -679,35 +687,46 @@ def _build_aligned(mov: _Tree, ref: _Tree, match: dict[int, int], gamma: np.ndar
     qr = srvf(pts_r)
     M, d = qr.shape[1:]
     # a child's parameter moves with its parent's warp (identity for unmatched parents: a null partner at the same s)
-    s_m = np.zeros(Nm)
+    s_m, cmp_m = np.zeros(Nm), np.zeros(Nm)
     for a in range(1, Nm):
         p = mov.parent[a]
-        s_m[a] = mov.s[a] if p not in match else \
-            _child_positions(mov, ref, p, match[p], [a], gamma[p], grid, positions)[0]
+        if p not in match:
+            s_m[a], cmp_m[a] = mov.frac[a], mov.s[a]
+        else:
+            s_m[a] = np.interp(mov.frac[a], gamma[p], grid)
+            cmp_m[a] = s_m[a] if positions == "warped" else \
+                _child_positions(mov, ref, p, match[p], [a], gamma[p], grid, positions)[0]
     q = torch.zeros(2, S, M, d, dtype=dtype, device=dev)
-    s = torch.zeros(2, S, dtype=dtype, device=dev)
     present = torch.zeros(2, S, dtype=torch.bool, device=dev)
     source = torch.full((2, S), -1, dtype=torch.long, device=dev)
     idx_m = torch.tensor(slot_of, dtype=torch.long, device=dev)
     ar_m, ar_r = torch.arange(Nm, device=dev), torch.arange(Nr, device=dev)
     q = q.index_put((torch.zeros(Nm, dtype=torch.long, device=dev), idx_m), qm)
     q = q.index_put((torch.ones(Nr, dtype=torch.long, device=dev), ar_r), qr)
-    s_ref = torch.from_numpy(ref.s).to(dev)
-    s[1, :Nr] = s_ref
-    s[0, :Nr] = s_ref  # null partners sit at the same s
-    s[0, idx_m] = torch.from_numpy(s_m).to(dev)
-    s[1, Nr:] = s[0, Nr:]
+
+    def slot_positions(s_ref: np.ndarray, s_mov: np.ndarray) -> Tensor:
+        out = torch.zeros(2, S, dtype=dtype, device=dev)
+        out[1, :Nr] = torch.from_numpy(s_ref).to(dev)
+        out[0, :Nr] = out[1, :Nr]  # null partners sit at the same s
+        out[0, idx_m] = torch.from_numpy(s_mov).to(dev)
+        out[1, Nr:] = out[0, Nr:]
+        return out
+
+    s = slot_positions(ref.frac, s_m)
+    compared = s if positions == "warped" else slot_positions(ref.s, cmp_m)
     present[0, idx_m] = True
     present[1, :Nr] = True
     source[0, idx_m] = ar_m
     source[1, :Nr] = ar_r
     root = torch.stack([pts_m[0, 0], pts_r[0, 0]])
-    return AlignedTrees(q, s, present, root, torch.tensor(slot_parent, device=dev),
-                        torch.tensor(slot_depth, device=dev), source, tuple(float(x) for x in lambdas))
+    aligned = AlignedTrees(q, s, present, root, torch.tensor(slot_parent, device=dev),
+                           torch.tensor(slot_depth, device=dev), source, tuple(float(x) for x in lambdas))
+    return aligned, compared
 
 
-def _pair_distance(aligned: AlignedTrees) -> Tensor:
-    f = aligned.features()
+def _pair_distance(aligned: AlignedTrees, positions: Tensor | None = None) -> Tensor:
+    """The layout's distance between its two trees, with ``positions (2, S)`` in place of its ``s`` if given."""
+    f = (aligned if positions is None else replace(aligned, s=positions)).features()
     e = (f[0] - f[1]).square().sum()
     return torch.where(e > 0, e.clamp_min(1e-300).sqrt(), torch.zeros_like(e))
 
@@ -797,14 +816,17 @@ def register_to_reference(trees: Trees, reference: Trees, lambdas: Sequence[floa
             is along) and an elastic warp of a nearly straight stem carries children almost freely. For
             identities across plants at different stages (:mod:`torch4dtree.bench.hierarchy`): bean plants
             otherwise register one trifoliate node shifted and turned by 180 degrees, at a lower distance than
-            the true correspondence. Not symmetric in the pair (the reference parent's length is the unit);
-            the moving tree's ``s`` in ``aligned`` are then on the reference's scale. ``"rank"``: its node rank,
+            the true correspondence. Not symmetric in the pair (the reference parent's length is the unit).
+            ``"rank"``: its node rank,
             the weighted count of nodes below it on the main branch (siblings within 2 % of its length are one
             node; a node counts ~1 if its largest subtree is longer than 10 % of the main branch, a short spur ~0;
             deeper children: their arc-length fraction of the parent): plants of a kind at
             different stages share their basal nodes, while arc lengths stretch with the internodes and young
             organs ride the apex. Best measured across plants with ``lp`` 12 and ``order_tol`` (bean 92.9 / 99.8 %
-            precision / recall on 180 pairs, :mod:`torch4dtree.bench.hierarchy`); ``aligned``'s ``s`` are ranks.
+            precision / recall on 180 pairs, :mod:`torch4dtree.bench.hierarchy`). Whatever ``positions``, the
+            results' ``aligned`` holds bifurcation parameters (a moving child at ``gamma^{-1}(s)`` on its matched
+            parent), so it decodes and :func:`~torch4dtree.trees.geodesic` works; with ``"arclength"`` / ``"rank"``
+            ``distance`` compares the children by those positions instead, so it is not the layout's own distance.
         order_tol: ``None`` (default, SPEC §3): the side subtrees of each node are matched by one linear assignment,
             any permutation. A number (e.g. :data:`ORDER_TOL`): order-preserving matching, for frames of one
             growing plant, whose organs never pass each other along a parent: the matched children keep their
@@ -913,12 +935,12 @@ def register_to_reference(trees: Trees, reference: Trees, lambdas: Sequence[floa
     for m, (mov, cfg, lam_m) in enumerate(zip(movs, best, lams)):
         assert cfg is not None
         cfg = inverse.get(m, cfg)
-        aligned = _build_aligned(mov, ref, cfg.match, cfg.gamma, cfg.O, lam_m, positions)
-        dist = _pair_distance(aligned)
+        aligned, compared = _build_aligned(mov, ref, cfg.match, cfg.gamma, cfg.O, lam_m, positions)
+        dist = _pair_distance(aligned, compared)
         ident = np.tile(np.linspace(0.0, 1.0, reference.T), (len(mov.parent), 1))
         base_match = _index_order_match(mov, ref)
-        base = _build_aligned(mov, ref, base_match, ident, eye, lam_m, positions)
-        dist_before = _pair_distance(base)
+        base, base_compared = _build_aligned(mov, ref, base_match, ident, eye, lam_m, positions)
+        dist_before = _pair_distance(base, base_compared)
         used_base = bool(dist_before < dist)
         # the index-order solution is a valid candidate: never return worse (kept over an inverted solution too,
         # the one place a symmetric registration can differ between the two argument orders)
