@@ -93,9 +93,15 @@ def main() -> None:
     ap.add_argument("--worst", type=int, default=5)
     ap.add_argument("--order-tol", type=float, default=None, help="register_sequence's order_tol (when it has one)")
     ap.add_argument("--top", type=int, default=None, help="the joint hierarchy's top branch points (consistent_frames)")
+    ap.add_argument("--positions", default=None, help="register_sequence's positions (warped / arclength / rank)")
+    ap.add_argument("--lp", type=float, default=None, help="register_sequence's relative lp")
     ap.add_argument("--json", action="store_true")
     a = ap.parse_args()
-    kw = {} if a.order_tol is None else {"order_tol": a.order_tol}
+    kw: dict = {} if a.order_tol is None else {"order_tol": a.order_tol}
+    if a.positions is not None:
+        kw["positions"] = a.positions
+    if a.lp is not None:
+        kw["lambdas"] = (1.0, 1.0, a.lp)
     hk = None if a.top is None else {"top": a.top}
     out = [measure(k, a.worst, hk, **kw) for k in a.kinds.split(",")]
     if a.json:

@@ -43,13 +43,14 @@ def test_cli_flags_override_the_config(tmp_path, capsys):
 
 
 def test_register_reads_its_settings_from_the_config(tmp_path, capsys):
-    """register takes the registration settings (rotation, lambdas, neighbourhood) and the loading ones from
-    --config; flags win. Two trees whose side branches sit at s = 0.25 / 0.75: lp decides the distance."""
+    """register takes the registration settings (rotation, lambdas, positions, neighbourhood) and the loading ones
+    from --config; flags win. Two trees whose side branches sit at s = 0.25 / 0.75: with warped positions lp decides
+    the distance; by node rank (the default) both are the stem's first node and cost nothing."""
     a, b = tmp_path / "a.swc", tmp_path / "b.swc"
     a.write_text("1 0 0 0 0 1 -1\n2 0 0 0 1 1 1\n3 0 0 0 4 1 2\n4 0 1 0 1 1 2\n")
     b.write_text("1 0 0 0 0 1 -1\n2 0 0 0 3 1 1\n3 0 0 0 4 1 2\n4 0 1 0 3 1 2\n")
     cfg = tmp_path / "c.json"
-    cfg.write_text(json.dumps({"T": 16, "lambdas": [1.0, 1.0, 0.0]}))
+    cfg.write_text(json.dumps({"T": 16, "lambdas": [1.0, 1.0, 0.0], "positions": "warped"}))
 
     def distance(*extra: str) -> float:
         assert main(["register", str(a), str(b), "--json", "--config", str(cfg), *extra]) == 0
@@ -58,6 +59,7 @@ def test_register_reads_its_settings_from_the_config(tmp_path, capsys):
     free = distance()  # lp = 0 from the config: the parameters cost nothing
     charged = distance("--lambdas", "1", "1", "100")  # the flag overrides the config
     assert free < 1e-6 < charged
+    assert distance("--lambdas", "1", "1", "100", "--positions", "rank") < 1e-6
     cfg.write_text(json.dumps({"lambdas": [1.0, 0.0, 1.0]}))
     assert main(["register", str(a), str(b), "--config", str(cfg)]) == 2  # a bad setting: a named error
     assert "ls > 0" in capsys.readouterr().err

@@ -86,6 +86,7 @@ def test_register4d_cross_registration_uses_the_setting(plants, monkeypatch):
 def test_config_round_trip_and_literals(tmp_path):
     # the config module keeps literals (no torch import): they must equal the library's
     assert config_module.POSITIONS == registration_module.POSITIONS
+    assert config_module.DEFAULT_POSITIONS == registration_module.DEFAULT_POSITIONS == Config().positions
     assert config_module.CROSS_POSITIONS == spatiotemporal_module.CROSS_POSITIONS
     assert config_module.CROSS_LP == spatiotemporal_module.CROSS_LP
     cfg = Config(cross_positions="arclength", cross_lp=60)

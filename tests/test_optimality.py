@@ -224,7 +224,7 @@ def test_tree_registration_equals_brute_force(seed: int, monkeypatch: pytest.Mon
     for _ in range(6):
         A, B = tiny_tree(rng), tiny_tree(rng)
         lam = random_lambdas(rng)
-        r = register_trees(A, B, lambdas=lam, lp_relative=False, symmetric=False)
+        r = register_trees(A, B, lambdas=lam, lp_relative=False, symmetric=False, positions="warped")
         best = BruteForce(A, B, lam).cost(0, 0)
         assert float(r.distance) ** 2 == pytest.approx(best, rel=1e-9, abs=1e-12), (lam, r.matches)
         # and the returned solution (matches, warps) really has that cost under the metric
@@ -242,7 +242,7 @@ def test_pairs_at_the_pruning_bound_equal_brute_force(seed: int, monkeypatch: py
     for _ in range(8):
         A, B = tiny_tree(rng, straight=True), tiny_tree(rng, straight=True)
         lam = random_lambdas(rng)
-        r = register_trees(A, B, lambdas=lam, lp_relative=False, symmetric=False)
+        r = register_trees(A, B, lambdas=lam, lp_relative=False, symmetric=False, positions="warped")
         best = BruteForce(A, B, lam).cost(0, 0)
         assert float(r.distance) ** 2 == pytest.approx(best, rel=1e-9, abs=1e-12), (lam, r.matches)
 
@@ -254,7 +254,7 @@ def test_children_aware_refit_is_never_worse_than_brute_force() -> None:
     for _ in range(8):
         A, B = tiny_tree(rng), tiny_tree(rng)
         lam = random_lambdas(rng)
-        r = register_trees(A, B, lambdas=lam, lp_relative=False, symmetric=False)
+        r = register_trees(A, B, lambdas=lam, lp_relative=False, symmetric=False, positions="warped")
         best = BruteForce(A, B, lam).cost(0, 0)
         d2 = float(r.distance) ** 2
         assert d2 <= best * (1 + 1e-9) + 1e-12
@@ -268,7 +268,7 @@ def test_batched_registration_equals_brute_force(monkeypatch: pytest.MonkeyPatch
     ref = tiny_tree(rng)
     movs = [tiny_tree(rng) for _ in range(5)]
     lam = random_lambdas(rng)
-    out = register_to_reference(Trees.cat(movs), ref, lambdas=lam, lp_relative=False, symmetric=False)
+    out = register_to_reference(Trees.cat(movs), ref, lambdas=lam, lp_relative=False, symmetric=False, positions="warped")
     for mov, r in zip(movs, out):
         assert float(r.distance) ** 2 == pytest.approx(BruteForce(mov, ref, lam).cost(0, 0), rel=1e-9, abs=1e-12)
 
@@ -283,8 +283,8 @@ def test_symmetric_registration_is_the_optimum_one_way(monkeypatch: pytest.Monke
         lam = random_lambdas(rng)
         if float(A.branch_lengths().sum()) > float(B.branch_lengths().sum()):
             A, B = B, A  # A is the smaller: A onto B is the canonical direction
-        fwd = register_trees(A, B, lambdas=lam, lp_relative=False)
-        bwd = register_trees(B, A, lambdas=lam, lp_relative=False)
+        fwd = register_trees(A, B, lambdas=lam, lp_relative=False, positions="warped")
+        bwd = register_trees(B, A, lambdas=lam, lp_relative=False, positions="warped")
         assert fwd.matches == sorted((a, b) for b, a in bwd.matches)
         if not fwd.used_index_order:
             assert float(fwd.distance) ** 2 == pytest.approx(BruteForce(A, B, lam).cost(0, 0), rel=1e-9, abs=1e-12)

@@ -294,7 +294,7 @@ def test_added_branch_costs_its_length():
     extra = int((B.label == int(B.num_branches[0]) - 1).nonzero()[0])
     length = float(B.branch_lengths()[extra])
     for ls in (1.0, 2.0):
-        r = register_trees(B, A, lambdas=(1.0, ls, 1.0))
+        r = register_trees(B, A, lambdas=(1.0, ls, 1.0), positions="warped")
         assert r.unmatched_moving == [extra] and r.unmatched_reference == []
         assert float(r.distance) ** 2 == pytest.approx(ls * length, rel=0.05)
 
@@ -314,7 +314,7 @@ def test_features_norm_is_the_recursive_metric():
     rng = np.random.default_rng(5)
     A, B = random_tree(rng), random_tree(rng)
     lam = (1.5, 0.7, 0.6)
-    r = register_trees(A, B, lambdas=lam)
+    r = register_trees(A, B, lambdas=lam, positions="warped")
     al = r.aligned
     assert al.T == A.T and al.num_trees == len(al) == 2 and al.num_slots >= int(B.num_branches[0])
     f = al.features()
@@ -435,11 +435,11 @@ def test_children_aware_parent_warp():
     B = Trees.from_branches([[stem.numpy(), (leaf + torch.tensor([0, 0, 0.6])).numpy()]], [[-1, 0]], T=T,
                             dtype=torch.float64)
     lam = (1.0, 1.0, 10.0)  # matching the children (<= 0.9) beats leaving both unmatched (1.6)
-    with_refit = register_trees(A, B, lambdas=lam, lp_relative=False)  # lp in the data's units
+    with_refit = register_trees(A, B, lambdas=lam, lp_relative=False, positions="warped")  # lp in the data's units
     rounds = reg.LANDMARK_ROUNDS
     try:
         reg.LANDMARK_ROUNDS = 0
-        stem_only = register_trees(A, B, lambdas=lam, lp_relative=False)
+        stem_only = register_trees(A, B, lambdas=lam, lp_relative=False, positions="warped")
     finally:
         reg.LANDMARK_ROUNDS = rounds
     assert with_refit.matches == stem_only.matches == [(0, 0), (1, 1)]

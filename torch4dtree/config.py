@@ -17,8 +17,10 @@ ROTATIONS = ("none", "vertical", "so3")
 LOAD_SETTINGS = ("T", "max_layers", "min_branch_length", "repair", "hierarchy", "joint_hierarchy")
 # = trees.skeleton.HIERARCHIES (literal for the same reason as DEFAULT_T; tested)
 HIERARCHIES = ("straightest", "heaviest", "longest")
-# = trees.registration.POSITIONS and temporal.spatiotemporal.CROSS_POSITIONS / CROSS_LP (literal, tested)
+# = trees.registration.POSITIONS / DEFAULT_POSITIONS and temporal.spatiotemporal.CROSS_POSITIONS / CROSS_LP
+# (literal, tested)
 POSITIONS = ("warped", "arclength", "rank")
+DEFAULT_POSITIONS = "rank"
 CROSS_POSITIONS = "warped"
 CROSS_LP: float | None = 10.0
 # = trees.structures.DEFAULT_T (kept literal so that importing this module never imports torch; tested)
@@ -46,6 +48,9 @@ class Config:
     rotation: str = "none"
     lambdas: tuple[float, float, float] = (1.0, 1.0, 1.0)  # (lm, ls, lp)
     neighbourhood: int = 4  # DP slopes up to 4: fastest and most cycle-consistent on Pheno4D at T = 64
+    # how two trees' children are compared in pair registrations (torch4dtree register); the sequences and the
+    # tree space register with "warped" (their layout's metric), cross-sequence registrations with cross_positions
+    positions: str = DEFAULT_POSITIONS
     # cross-sequence registrations (register4d, the model's population): children's positions and relative lp
     # (null: lambdas[2]); within a sequence, register_sequence keeps its own (temporal.spatiotemporal.CROSS_*)
     cross_positions: str = CROSS_POSITIONS
@@ -72,6 +77,8 @@ class Config:
         self.lambdas = tuple(float(x) for x in self.lambdas)  # type: ignore[assignment]
         if len(self.lambdas) != 3 or min(self.lambdas) < 0 or min(self.lambdas[:2]) <= 0:
             raise _error(f"lambdas must be (lm > 0, ls > 0, lp >= 0), got {self.lambdas}")
+        if self.positions not in POSITIONS:
+            raise _error(f"positions must be one of {POSITIONS}, got {self.positions!r}")
         if self.cross_positions not in POSITIONS:
             raise _error(f"cross_positions must be one of {POSITIONS}, got {self.cross_positions!r}")
         if self.cross_lp is not None:

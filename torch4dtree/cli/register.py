@@ -7,6 +7,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+from ..config import POSITIONS, Config
 from .options import UsageError, add_config_arguments, check_output_file, config_from_args, int_at_least
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".gif", ".mp4")
@@ -27,6 +28,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "in one colour; needs the render extra (default: none)")
     parser.add_argument("--overwrite", action="store_true", help="replace existing files in --out / --image")
     add_config_arguments(parser, registration=True)
+    parser.add_argument("--positions", choices=POSITIONS, default=None,
+                        help=f"how children's places on their parents are compared (default: {Config.positions}: "
+                             "node rank along the main branch; warped: the SPEC's parameter after the parent's warp, "
+                             "the layout's own metric; arclength: arc length from the parent's base)")
 
 
 def _check_tree_file(path: Path) -> None:
@@ -111,7 +116,7 @@ def run(args: argparse.Namespace) -> int:
     warm_up()  # a cold compile happens here, with its notice, and stays out of the timing
     t0 = time.perf_counter()
     res = register_trees(moving, reference, lambdas=cfg.lambdas, rotation=cfg.rotation,
-                         neighbourhood=cfg.neighbourhood)
+                         neighbourhood=cfg.neighbourhood, positions=cfg.positions)
     seconds = time.perf_counter() - t0
     written: list[str] = []
     if args.image is not None:

@@ -52,7 +52,7 @@ ROTATIONS = ("none", "vertical", "so3")
 MEDOID_T = 24
 # register_to_reference settings a KarcherMean passes through (lambdas and rotation are its own)
 REGISTRATION_KEYS = tuple(k for k in inspect.signature(register_to_reference).parameters
-                          if k not in ("trees", "reference", "lambdas", "rotation"))
+                          if k not in ("trees", "reference", "lambdas", "rotation", "positions"))
 
 
 class SlotLimitError(ValueError):
@@ -450,8 +450,9 @@ class KarcherMean(FittedModule):
 
     def _register(self, trees: Trees, mean: _Mean) -> list[_Registered]:
         # one way (symmetric=False): the trees are aligned onto the mean; an inverted solution would only fit worse
+        # warped positions: the registrations minimise the layout's own metric, which the mean averages
         regs = register_to_reference(trees, _decode(mean), self.lambdas, self.rotation, lp_relative=False,
-                                     symmetric=False, **self.registration)
+                                     symmetric=False, positions="warped", **self.registration)
         return [_registered(r) for r in regs]
 
     def _initial_mean(self, trees: Trees) -> tuple[_Mean, list[_Registered] | None]:

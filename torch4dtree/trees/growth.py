@@ -117,7 +117,7 @@ def consistent_frames(skeletons: Sequence[tuple[np.ndarray, np.ndarray, np.ndarr
             # one metric for all candidates (lp relative to the reference alone): their main branches differ in length;
             # all solved one way (a symmetric solve would invert some of them: distances not comparable to 0.2-1 %)
             regs = register_to_reference(Trees.cat(candidates), coarse, effective_lambdas(lambdas, coarse), rotation,
-                                         lp_relative=False, symmetric=False)
+                                         lp_relative=False, symmetric=False, positions="warped")
             d = np.array([float(r.distance) for r in regs])
             best = int(np.argmin(d[1:])) + 1
             pick = best if d[best] < margin * d[0] else 0  # the rule's own path (first) unless clearly worse
