@@ -268,7 +268,8 @@ def test_batched_registration_equals_brute_force(monkeypatch: pytest.MonkeyPatch
     ref = tiny_tree(rng)
     movs = [tiny_tree(rng) for _ in range(5)]
     lam = random_lambdas(rng)
-    out = register_to_reference(Trees.cat(movs), ref, lambdas=lam, lp_relative=False, symmetric=False, positions="warped")
+    out = register_to_reference(Trees.cat(movs), ref, lambdas=lam, lp_relative=False, symmetric=False,
+                                positions="warped")
     for mov, r in zip(movs, out):
         assert float(r.distance) ** 2 == pytest.approx(BruteForce(mov, ref, lam).cost(0, 0), rel=1e-9, abs=1e-12)
 
