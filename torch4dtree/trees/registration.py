@@ -704,8 +704,7 @@ def _build_aligned(mov: _Tree, ref: _Tree, match: dict[int, int], gamma: np.ndar
             s_m[a], cmp_m[a] = mov.frac[a], mov.s[a]
         else:
             s_m[a] = np.interp(mov.frac[a], gamma[p], grid)
-            cmp_m[a] = s_m[a] if positions == "warped" else \
-                _child_positions(mov, ref, p, match[p], [a], gamma[p], grid, positions)[0]
+            cmp_m[a] = _child_positions(mov, ref, p, match[p], [a], gamma[p], grid, positions)[0]
     q = torch.zeros(2, S, M, d, dtype=dtype, device=dev)
     present = torch.zeros(2, S, dtype=torch.bool, device=dev)
     source = torch.full((2, S), -1, dtype=torch.long, device=dev)
