@@ -72,10 +72,12 @@ def test_register4d_command_line(tmp_path, capsys):
 
 
 def test_spatial_stage_keeps_the_smallest_candidate():
-    """The kept spatial candidate is the smallest of the three 4D distances, recomputed here from their layouts."""
+    """The kept spatial candidate is the smallest of the candidates' 4D distances, recomputed here from their
+    layouts (the registration's warps, its correspondence with identity warps, index order, and the last two with
+    the 4D-distance warps of fourd_warps on every matched slot or on the childless ones)."""
     from torch4dtree.temporal.registration import register_trajectories
-    from torch4dtree.temporal.spatiotemporal import _trajectories, combine_sequences, representative_tree
-    from torch4dtree.trees.registration import effective_lambdas, register_trees
+    from torch4dtree.temporal.spatiotemporal import _trajectories, combine_sequences, fourd_warps, representative_tree
+    from torch4dtree.trees.registration import effective_lambdas, index_order_matches, register_trees
 
     a, b = (p.sequence for p in synthetic_dataset("bean", 2, 3, n_frames=5, T=16, dtype=torch.float64))
     r = register4d(a, b, n_t=16, fallback_rotation=None)
@@ -88,37 +90,80 @@ def test_spatial_stage_keeps_the_smallest_candidate():
                          symmetric=False)
     ident = torch.linspace(0, 1, rep_b.T, dtype=torch.float64).expand(rep_b.points.shape[0], -1)
     eye = torch.eye(3, dtype=torch.float64)
-    dists = {}
-    for name, gamma in (("registered", reg.gamma.double()), ("correspondence", ident)):
-        layout = combine_sequences(A, B, reg.matches, gamma, eye, lam)
-        _, x, y = _trajectories(layout, len(A), A.times, B.times, 16, None)
-        dists[name] = float(register_trajectories(x, y).distance_before)
-    dists["index_order"] = r.distance_before
+    fine = 8 * 15 + 1
+
+    def distance(matches, gamma):
+        layout = combine_sequences(A, B, matches, gamma, eye, lam)
+        _, x, y = _trajectories(layout, len(A), A.times, B.times, 16, None, fine)
+        return layout, float(register_trajectories(x, y).distance_before)
+
+    parents = set(B.aligned.slot_parent.tolist())
+    dists = {"registered": distance(reg.matches, reg.gamma.double())[1]}
+    for name, matches in (("correspondence", reg.matches), ("index_order", index_order_matches(rep_b, rep_a))):
+        layout, dists[name] = distance(matches, ident)
+        g4 = fourd_warps(layout, len(A), A.times, B.times, 16, matches, ident)
+        leaves = ident.clone()
+        childless = [k for k, _ in matches if k not in parents]
+        leaves[childless] = g4[childless]
+        dists[f"{name}_4d"] = min(distance(matches, g4)[1], distance(matches, leaves)[1])
+    assert r.distance_before == pytest.approx(dists["index_order"], rel=1e-9)
     assert r.distance_after_spatial == pytest.approx(min(dists.values()), rel=1e-9)
     assert r.spatial_candidate == min(dists, key=dists.get)
     assert r.kept_index_order == (r.spatial_candidate == "index_order")
 
 
+def test_fourd_warps_undo_a_reparameterisation_of_every_frame():
+    """B is A with every slot's branch reparameterised by one known warp in all frames (children moved with
+    their parents): the 4D-distance warps recover its inverse and bring the 4D distance down to near the floor of
+    resampling (composing with the exact inverse leaves 0.38 of 4.1 at T = 32)."""
+    from torch4dtree.temporal import register_sequence
+    from torch4dtree.temporal.spatiotemporal import _candidate_distance, combine_sequences, fourd_warps
+
+    A = register_sequence(synthetic_plant("maize", 1, n_frames=6, T=32, dtype=torch.float64).sequence)
+    S, T = A.num_slots, A.aligned.T
+    t = torch.linspace(0, 1, T, dtype=torch.float64)
+    # a different smooth warp per slot
+    gamma = torch.stack([t ** (1.0 + 0.6 * (k % 3) - 0.3) for k in range(S)])
+    matches = [(k, k) for k in range(S)]
+    lam = (1.0, 1.0, 2.0)
+    eye = torch.eye(3, dtype=torch.float64)
+    n, times = len(A), A.times
+    layout = combine_sequences(A, A, matches, gamma, eye, lam)
+    before = _candidate_distance(layout, n, times, times, 16, None, 16)
+    g = fourd_warps(layout, n, times, times, 16, matches, gamma)
+    after = _candidate_distance(combine_sequences(A, A, matches, g, eye, lam), n, times, times, 16, None, 16)
+    assert before > 1.0
+    assert after < 0.15 * before
+    # gamma o g ~ identity: g undoes gamma on every slot
+    assert float((g - t).abs().mean()) < 0.006
+
+
 def test_spatial_stage_lowers_real_pairs_where_the_first_registration_does_not():
     """Pheno4D maize (.mat, T = 64). maize01 / maize03: the registration's warps, fitted to each branch's latest
-    shape, misfit the younger frames; its correspondence with identity warps is the smallest 4D distance.
-    maize02 / maize03 with the space's own lp in the cross registration (cross_lp=None): neither candidate of
-    rotation="none" beats index order (the stage would end equal); the fallback vertical rotation search lowers it.
-    With the default cross_lp (10) rotation="none" lowers it already."""
+    shape, misfit the younger frames; its correspondence is kept, with identity or 4D-distance warps.
+    maize02 / maize03 with the space's own lp in the cross registration (cross_lp=None): neither registered
+    candidate of rotation="none" beats index order; the index order with the 4D-distance warps lowers it, and the
+    fallback vertical rotation search lowers it further. Sequences chained by node rank (maize01 / maize02): the
+    index order is the best correspondence and only the 4D-distance warps lower it."""
     from torch4dtree.io import LoadOptions, read_sequence
     from torch4dtree.temporal import register_sequence
 
     opts = LoadOptions(T=64, dtype=torch.float64)
-    seqs = {n: register_sequence(read_sequence(pheno4d("mat", f"maize0{n}_seq"), opts).sequence) for n in (1, 2, 3)}
+    raw = {n: read_sequence(pheno4d("mat", f"maize0{n}_seq"), opts).sequence for n in (1, 2, 3)}
+    seqs = {n: register_sequence(raw[n], positions="warped") for n in (1, 2, 3)}
     r = register4d(seqs[1], seqs[3])
-    assert r.spatial_candidate == "correspondence"
+    assert r.spatial_candidate.startswith("correspondence")
     assert r.distance_after_spatial < r.distance_before - 1e-3
     plain = register4d(seqs[2], seqs[3], fallback_rotation=None, cross_lp=None)
-    assert plain.spatial_candidate == "index_order" and plain.kept_index_order
-    assert plain.distance_after_spatial == pytest.approx(plain.distance_before, rel=1e-9)
+    assert plain.spatial_candidate == "index_order_4d" and not plain.kept_index_order
+    assert plain.distance_after_spatial < plain.distance_before - 1e-3
     r = register4d(seqs[2], seqs[3], cross_lp=None)
-    assert r.spatial_candidate.endswith("_vertical")
-    assert r.distance_after_spatial < r.distance_before - 1e-3
+    assert "_vertical" in r.spatial_candidate
+    assert r.distance_after_spatial < plain.distance_after_spatial - 1e-3
     assert r.distance_after_temporal <= r.distance_after_spatial
     r = register4d(seqs[2], seqs[3], fallback_rotation=None)
     assert r.spatial_candidate != "index_order" and r.distance_after_spatial < r.distance_before - 1e-3
+    ranked = [register_sequence(raw[n], positions="rank") for n in (1, 2)]
+    r = register4d(*ranked, fallback_rotation=None)
+    assert r.spatial_candidate == "index_order_4d"
+    assert r.distance_after_spatial < r.distance_before - 0.1

@@ -18,6 +18,10 @@ The pipeline, for 4D trees ``A`` (reference) and ``B`` (moving):
    candidate beats index order, the representatives are registered again with a wider rotation search
    (``fallback_rotation``, default ``"vertical"``) and its two candidates (``"registered_vertical"``,
    ``"correspondence_vertical"``) join: 2 of 16 Pheno4D pairs at the default ``cross_lp``, which it lowers.
+   Last, every correspondence with identity warps is tried again with the warps that minimise the 4D distance
+   itself (:func:`fourd_warps`, one elastic matching per slot over all times at once; ``"<name>_4d"``, e.g.
+   ``"index_order_4d"``): where the index order is already the best correspondence (sequences chained by node
+   rank), the spatial stage still lowers the distance through the branches' parameterisations.
 3. **Tree space**: PCA of all frames' weighted SRVFT features (all components by default, so coefficient
    distances are exactly tree distances); each 4D tree becomes a trajectory in ``R^k``, resampled at ``n_t``
    equally spaced normalised times between its actual frame times.
@@ -40,7 +44,9 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
-from ..curves.srvf import interpolate_curve, inverse_srvf, warp_srvf
+from ..curves.register import dp_warp
+from ..curves.srvf import interpolate_curve, inverse_srvf, srvf, warp_srvf
+from ..curves.warps import compose_warps
 from ..space.pca import TreePCA
 from ..trees.aligned import AlignedTrees
 from ..trees.registration import POSITIONS, effective_lambdas, index_order_matches, register_trees
@@ -50,7 +56,7 @@ from .trajectory import fine_size, resample_trajectory, trajectory_srvf
 from .within import AlignedSequence, _inverse_at, register_sequence
 
 __all__ = ["CROSS_LP", "CROSS_POSITIONS", "SpatiotemporalRegistration", "check_cross_settings", "combine_many",
-           "combine_sequences", "grow_union", "open_slots",
+           "combine_sequences", "fourd_warps", "grow_union", "open_slots",
            "place_sequence", "register4d", "representative_tree"]
 
 DEFAULT_NT = 32
@@ -247,7 +253,7 @@ class SpatiotemporalRegistration(NamedTuple):
     * ``kept_index_order``: the index-order correspondence was kept (``spatial_candidate == "index_order"``).
     * ``spatial_candidate``: which candidate of the spatial stage was kept (module doc): ``"registered"``,
       ``"correspondence"``, ``"index_order"`` or, from the fallback search, ``"registered_vertical"`` /
-      ``"correspondence_vertical"``.
+      ``"correspondence_vertical"``; with the 4D-distance warps, the same name and ``"_4d"``.
     * ``cross_registration``: the cross-sequence registration's settings, ``{"positions", "lambdas"}`` (the
       effective weights it used).
     """
@@ -330,6 +336,47 @@ def _candidate_distance(layout: AlignedTrees, n_ref: int, ref_times: Tensor, mov
     return float(trajectory_distance(a, b))
 
 
+def fourd_warps(layout: AlignedTrees, n_ref: int, ref_times: Tensor, mov_times: Tensor, n_t: int,
+                matches: Sequence[tuple[int, int]], gamma: Tensor) -> Tensor:
+    """The warp of each matched ``B`` slot that best aligns it with its ``A`` slot *over the whole 4D distance*.
+
+    A slot's warp acts on all of ``B``'s frames as a linear isometry ``W`` of the slot's features (``q -> (q o g)
+    sqrt(g')``), so ``W`` commutes with the trajectory's time derivative and keeps its norm: ``B``'s trajectory SRVF
+    becomes ``W q_B`` and its start point ``W alpha_B(0)``. The 4D distance at the identity time warp,
+    ``|alpha_A(0) - W alpha_B(0)|^2 + ||q_A - W q_B||^2``, then splits into one elastic matching per slot of the
+    functions ``[alpha(0), q(t_1), ..., q(t_{n_t - 1})]`` stacked as channels (``R^{M x n_t d}``), which the DP
+    engine solves exactly on its lattice (:func:`~torch4dtree.curves.register.dp_warp`, never worse than the
+    identity). Children's parameters (the ``s`` features) move with their parents' warps and are left out of the
+    objective; the candidate is scored on the full distance.
+
+    Args:
+        layout: both sequences in the union layout with ``gamma`` applied (``A``'s ``n_ref`` frames first).
+        matches: ``[(B slot, A slot)]``; ``gamma``: ``(S_B, T)`` the warps ``layout`` was built with.
+
+    Returns:
+        ``(S_B, T)``: ``gamma`` composed with the new warp on every matched slot.
+    """
+    m = [(b, a) for b, a in matches]
+    if not m:
+        return gamma
+    X = layout.features().detach()
+    n, S, M, d = layout.q.shape
+    parts = []
+    for x, t in ((X[:n_ref], ref_times), (X[n_ref:], mov_times)):
+        alpha = resample_trajectory(x, t.to(x.dtype), n_t)
+        q = srvf(alpha) / (n_t - 1) ** 0.5  # (n_t - 1, F): the 4D distance's weight per time step
+        parts.append(torch.cat([alpha[:1], q])[:, : S * M * d].reshape(n_t, S, M, d))
+    a_slots = torch.tensor([a for _, a in m], device=X.device)
+    # (P, M, n_t d): each slot's stacked channels (the slot's constant feature weight scales both sides alike)
+    f_a, f_b = (p[:, a_slots].permute(1, 2, 0, 3).reshape(len(m), M, n_t * d) for p in parts)
+    g = dp_warp(f_a, f_b).gamma.to(gamma.dtype)
+    out = gamma.clone()
+    b_slots = torch.tensor([b for b, _ in m], device=gamma.device)
+    # layout's slot = beta_B o gamma; the new warp acts after it: beta_B o gamma o g
+    out[b_slots] = compose_warps(gamma[b_slots], g)
+    return out
+
+
 def register4d(reference: TreeSequence | AlignedSequence, moving: TreeSequence | AlignedSequence,
                lambdas: Sequence[float] = (1.0, 1.0, 1.0), rotation: str = "none", n_t: int = DEFAULT_NT,
                n_components: int | None = None, progress: bool = False,
@@ -400,13 +447,25 @@ def register4d(reference: TreeSequence | AlignedSequence, moving: TreeSequence |
     # B's trajectory finer than n_t, so the temporal registration warps its frames, not its n_t samples
     fine = fine_size(n_t, B.times)
 
-    def score(m: Sequence[tuple[int, int]], g: Tensor, R: Tensor) -> tuple[AlignedTrees, float]:
+    def score(name: str, m: Sequence[tuple[int, int]], g: Tensor, R: Tensor) -> tuple:
         layout = combine_sequences(A, B, m, g, R, lam)
-        return layout, _candidate_distance(layout, n_ref, A.times, B.times, n_t, n_components, fine)
+        return name, list(m), layout, _candidate_distance(layout, n_ref, A.times, B.times, n_t, n_components, fine), \
+            g, R
 
-    # (name, matches, layout, 4D distance); index order first: it is what "before" is measured with
+    parents = set(B.aligned.slot_parent.tolist())
+
+    def with_4d_warps(c: tuple) -> tuple:
+        name, m, layout, _, g, R = c
+        g4 = fourd_warps(layout, n_ref, A.times, B.times, n_t, m, g)
+        # the warps leave the children's places (s features) out: warping a parent moves them, which can cost more
+        # than the warp gains, so the same warps on childless slots only are scored too
+        leaves = g.clone()
+        leaves[[b for b, _ in m if b not in parents]] = g4[[b for b, _ in m if b not in parents]]
+        return min(score(f"{name}_4d", m, g4, R), score(f"{name}_4d", m, leaves, R), key=lambda x: x[3])
+
+    # (name, matches, layout, 4D distance, warps, rotation); index order first: "before" is measured with it
     index_matches = index_order_matches(rep_b, rep_a)
-    candidates = [("index_order", index_matches, *score(index_matches, ident, eye))]
+    candidates = [score("index_order", index_matches, ident, eye)]
     searches = [rotation]
     if fallback_rotation not in (None, rotation) and not (fallback_rotation == "vertical" and rep_b.dim != 3):
         searches.append(fallback_rotation)
@@ -418,13 +477,15 @@ def register4d(reference: TreeSequence | AlignedSequence, moving: TreeSequence |
                              **registration_kwargs)
         R = reg.rotation.to(torch.float64)
         suffix = "" if k == 0 else f"_{rot}"
-        candidates += [(f"registered{suffix}", list(reg.matches), *score(reg.matches, reg.gamma.to(torch.float64), R)),
-                       (f"correspondence{suffix}", list(reg.matches), *score(reg.matches, ident, R))]
+        candidates += [score(f"registered{suffix}", reg.matches, reg.gamma.to(torch.float64), R),
+                       score(f"correspondence{suffix}", reg.matches, ident, R)]
+    # every correspondence again with the warps that minimise the 4D distance itself (fourd_warps)
+    candidates += [with_4d_warps(c) for c in candidates if not c[0].startswith("registered")]
     seconds["cross_sequence"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     d_before = candidates[0][3]
     # ties go to the registrations (in search order), index order last
-    spatial_candidate, matches, after, _ = min(candidates[1:] + candidates[:1], key=lambda c: c[3])
+    spatial_candidate, matches, after = min(candidates[1:] + candidates[:1], key=lambda c: c[3])[:3]
     pca, alpha_a, alpha_b = _trajectories(after, n_ref, A.times, B.times, n_t, n_components, fine)
     seconds["tree_space"] = time.perf_counter() - t0
     t0 = time.perf_counter()
