@@ -301,6 +301,18 @@ class SpatiotemporalRegistration(NamedTuple):
         return a, b, b_reg
 
 
+class _Candidate(NamedTuple):
+    """A candidate of register4d's spatial stage: ``B``'s slots matched to ``A``'s (``matches``), warped
+    (``gamma (S_B, T)``) and rotated, the union ``layout`` they give and its 4D ``distance``."""
+
+    name: str
+    matches: list[tuple[int, int]]
+    layout: AlignedTrees
+    distance: float
+    gamma: Tensor
+    rotation: Tensor
+
+
 def _split_trajectories(coeffs: Tensor, n_ref: int, ref_times: Tensor, mov_times: Tensor, n_t: int,
                         mov_samples: int | None = None) -> tuple[Tensor, Tensor]:
     """Frame coefficients (``A``'s frames first) -> ``alpha_ref (n_t, k)``, ``alpha_mov (mov_samples, k)``."""
@@ -357,11 +369,11 @@ def fourd_warps(layout: AlignedTrees, n_ref: int, ref_times: Tensor, mov_times: 
     Returns:
         ``(S_B, T)``: ``gamma`` composed with the new warp on every matched slot.
     """
-    m = [(b, a) for b, a in matches]
+    m = list(matches)
     if not m:
         return gamma
     X = layout.features().detach()
-    n, S, M, d = layout.q.shape
+    _, S, M, d = layout.q.shape
     parts = []
     for x, t in ((X[:n_ref], ref_times), (X[n_ref:], mov_times)):
         alpha = resample_trajectory(x, t.to(x.dtype), n_t)
@@ -448,30 +460,33 @@ def register4d(reference: TreeSequence | AlignedSequence, moving: TreeSequence |
     # B's trajectory finer than n_t, so the temporal registration warps its frames, not its n_t samples
     fine = fine_size(n_t, B.times)
 
-    def score(name: str, m: Sequence[tuple[int, int]], g: Tensor, R: Tensor) -> tuple:
+    def score(name: str, m: Sequence[tuple[int, int]], g: Tensor, R: Tensor) -> _Candidate:
         layout = combine_sequences(A, B, m, g, R, lam)
-        return name, list(m), layout, _candidate_distance(layout, n_ref, A.times, B.times, n_t, n_components, fine), \
-            g, R
+        return _Candidate(name, list(m), layout,
+                          _candidate_distance(layout, n_ref, A.times, B.times, n_t, n_components, fine), g, R)
 
     parents = set(B.aligned.slot_parent.tolist())
 
-    def with_4d_warps(c: tuple) -> tuple:
-        name, m, layout, _, g, R = c
-        g4 = fourd_warps(layout, n_ref, A.times, B.times, n_t, m, g)
+    def with_4d_warps(c: _Candidate) -> _Candidate:
+        g4 = fourd_warps(c.layout, n_ref, A.times, B.times, n_t, c.matches, c.gamma)
+        options = [score(f"{c.name}_4d", c.matches, g4, c.rotation)]
         # the warps leave the children's places (s features) out: warping a parent moves them, which can cost more
         # than the warp gains, so the same warps on childless slots only are scored too
-        leaves = g.clone()
-        leaves[[b for b, _ in m if b not in parents]] = g4[[b for b, _ in m if b not in parents]]
-        return min(score(f"{name}_4d", m, g4, R), score(f"{name}_4d", m, leaves, R), key=lambda x: x[3])
+        childless = [b for b, _ in c.matches if b not in parents]
+        if 0 < len(childless) < len(c.matches):
+            leaves = c.gamma.clone()
+            leaves[childless] = g4[childless]
+            options.append(score(f"{c.name}_4d", c.matches, leaves, c.rotation))
+        return min(options, key=lambda x: x.distance)
 
-    # (name, matches, layout, 4D distance, warps, rotation); index order first: "before" is measured with it
+    # index order first: "before" is measured with it
     index_matches = index_order_matches(rep_b, rep_a)
     candidates = [score("index_order", index_matches, ident, eye)]
     searches = [rotation]
     if fallback_rotation not in (None, rotation) and not (fallback_rotation == "vertical" and rep_b.dim != 3):
         searches.append(fallback_rotation)
     for k, rot in enumerate(searches):
-        if k and min(c[3] for c in candidates[1:]) < candidates[0][3]:
+        if k and min(c.distance for c in candidates[1:]) < candidates[0].distance:
             break  # the fallback search only runs where the first did not beat index order
         # one way (symmetric=False), as the weights are A's: B's representative onto A's
         reg = register_trees(rep_b, rep_a, lam_reg, rot, lp_relative=False, symmetric=False, positions=positions,
@@ -484,14 +499,14 @@ def register4d(reference: TreeSequence | AlignedSequence, moving: TreeSequence |
     # the index order's only where no registered candidate beats it: where one does, the registration's
     # correspondence is the organs' (synthetic bean: an index order with 4D warps can edge below it, 85 % of the
     # slots the same organ instead of 96 %)
-    d_before = candidates[0][3]
-    candidates += [with_4d_warps(c) for c in candidates if c[0].startswith("correspondence")]
-    if min(c[3] for c in candidates[1:]) >= d_before:
+    d_before = candidates[0].distance
+    candidates += [with_4d_warps(c) for c in candidates if c.name.startswith("correspondence")]
+    if min(c.distance for c in candidates[1:]) >= d_before:
         candidates.append(with_4d_warps(candidates[0]))
     seconds["cross_sequence"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     # ties go to the registrations (in search order), index order last
-    spatial_candidate, matches, after = min(candidates[1:] + candidates[:1], key=lambda c: c[3])[:3]
+    spatial_candidate, matches, after = min(candidates[1:] + candidates[:1], key=lambda c: c.distance)[:3]
     pca, alpha_a, alpha_b = _trajectories(after, n_ref, A.times, B.times, n_t, n_components, fine)
     seconds["tree_space"] = time.perf_counter() - t0
     t0 = time.perf_counter()
