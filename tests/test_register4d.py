@@ -61,7 +61,8 @@ def test_register4d_command_line(tmp_path, capsys):
     assert main(["register4d", str(a), str(b), "--T", "16", "--json", "--out", str(tmp_path / "out"), "--steps", "3",
                  "--n-t", "8"]) == 0
     out = json.loads(capsys.readouterr().out)
-    assert {"distance_before", "distance_after_spatial", "distance_after_temporal", "warp", "seconds"} <= set(out)
+    assert {"distance_before", "distance_after_spatial", "distance_after_temporal", "warp", "seconds",
+            "spatial_candidate"} <= set(out)
     assert len(out["warp"]) == 8 and out["warp"][0] == 0.0 and out["warp"][-1] == pytest.approx(1.0)
     assert all(x <= y + 1e-12 for x, y in zip(out["warp"], out["warp"][1:]))
     assert out["distance_after_temporal"] <= out["distance_after_spatial"]

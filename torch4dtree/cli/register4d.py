@@ -93,7 +93,7 @@ def run(args: argparse.Namespace) -> int:
         "distance_after_temporal": res.distance_after_temporal, "warp": [float(x) for x in res.warp],
         "seconds": seconds, "stage_seconds": res.seconds, "frames": [len(a), len(b)],
         "slots": res.layout.num_slots, "components": res.pca.n_components_,
-        "kept_index_order": res.kept_index_order, "written": written,
+        "kept_index_order": res.kept_index_order, "spatial_candidate": res.spatial_candidate, "written": written,
     }
     if args.json:
         print(json.dumps(summary))
