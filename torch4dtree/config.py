@@ -48,7 +48,7 @@ class Config:
     rotation: str = "none"
     lambdas: tuple[float, float, float] = (1.0, 1.0, 1.0)  # (lm, ls, lp)
     neighbourhood: int = 4  # DP slopes up to 4: fastest and most cycle-consistent on Pheno4D at T = 64
-    # how two trees' children are compared in pair registrations (torch4dtree register); the sequences and the
+    # how two trees' children are compared in pair registrations (torch4dtree register); the Karcher mean and the
     # tree space register with "warped" (their layout's metric), cross-sequence registrations with cross_positions
     positions: str = DEFAULT_POSITIONS
     # cross-sequence registrations (register4d, the model's population): children's positions and relative lp

@@ -88,8 +88,8 @@ class TreeRegistration(NamedTuple):
     * ``unmatched_moving`` / ``unmatched_reference``: branches matched to a null branch.
     * ``aligned``: :class:`AlignedTrees` with 2 trees in one layout: ``[registered moving, reference]``
       (reference's slots first, in its packed order, then slots for the moving tree's unmatched branches); its
-      ``s`` are bifurcation parameters whatever the ``positions`` compared (with ``"warped"``, the default,
-      ``distance`` is its features' distance).
+      ``s`` are bifurcation parameters whatever the ``positions`` compared (with ``"warped"``, ``distance`` is its
+      features' distance).
     * ``used_index_order``: the index-order solution was better than the optimised one and was kept.
     """
 
@@ -368,7 +368,7 @@ POSITIONS = ("warped", "arclength", "rank")
 # maize 94.7 -> 100, bean 99.7 -> 100; across plants 89.5 -> 92.0, 87.2 -> 98.4, 59.2 -> 80.9. The cost, on the
 # paper's .mat trees (64 consecutive pairs, T = 256): length on null-matched branches 2.70 -> 2.90 % (tomato),
 # 0.04 -> 0.05 % (maize), mapped cycle consistency 0 % either way. Layout-averaging callers (the Karcher mean,
-# sequences, the tree space) keep "warped": their registrations must minimise the layout's own metric.
+# the joint hierarchy, the tree space) keep "warped": their registrations must minimise the layout's own metric.
 DEFAULT_POSITIONS = "rank"
 
 
@@ -828,8 +828,8 @@ def register_to_reference(trees: Trees, reference: Trees, lambdas: Sequence[floa
             synthetic maize frames 94.7 % precision with ``"warped"``, 100 % with ``"rank"``; across bean plants
             59 -> 81 %. ``"warped"`` (SPEC §3): ``s'_c = gamma^{-1}(s_c)``, the child moves with its parent's warp
             (and the parent's warp is refitted to carry matched children onto their partners): the distance is
-            then the layout's own metric (what means and geodesics average), which is why the Karcher mean, the
-            sequences and the tree space register with it. ``"arclength"``: its arc length from the parent's
+            then the layout's own metric (what means and geodesics average), which is why the Karcher mean and the
+            tree space register with it. ``"arclength"``: its arc length from the parent's
             base, in units of the reference parent's length, whatever the warp (not symmetric in the pair: the
             reference parent's length is the unit). Across plants ``"rank"`` is best with ``lp`` 12 and
             ``order_tol`` (bean 92.9 / 99.8 % precision / recall on 180 pairs, :mod:`torch4dtree.bench.hierarchy`).
