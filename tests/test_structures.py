@@ -70,6 +70,12 @@ def test_index_cat_split_to_roundtrip(rng):
     assert f32.points.dtype == torch.float32 and f32.s.dtype == torch.float32 and f32.parent.dtype == torch.long
     with pytest.raises(IndexError):
         trees[5]
+    # lists take negative indices like ints, and out-of-range ones fail instead of selecting nothing
+    assert torch.equal(trees[[-1, 0]].points, trees[[2, 0]].points)
+    assert torch.equal(trees[[-2, -1]].points, trees[1:].points)
+    for bad in ([3], [0, -4]):
+        with pytest.raises(IndexError):
+            trees[bad]
 
 
 def test_measures(rng):

@@ -21,7 +21,7 @@ import torch
 from torch import Tensor
 
 from ..curves.srvf import srvf, srvf_sq_norm
-from .decode_numba import HAVE_NUMBA, place_branches, segments
+from .decode_numba import HAVE_NUMBA, integrate_rows, place_branches
 from .structures import Trees
 
 __all__ = ["AlignedTrees", "Lambdas", "SlotRows", "rows_to_trees", "segment_lengths", "slot_weights",
@@ -244,7 +244,7 @@ class SlotRows(NamedTuple):
     ``M*d`` values), as a PCA decodes them (:meth:`torch4dtree.space.TreePCA.decode`); ``slot`` None: row ``r`` is
     ``mean[r]`` (``k = 0``, the SRVFs themselves, :meth:`of`). Rows are grouped by slot, in increasing order.
 
-    The compiled decode computes each row where it needs it instead of storing them all (:mod:`.decode_numba`).
+    The compiled decode computes each row once, straight into its curve, without storing them (:mod:`.decode_numba`).
     """
 
     c: Tensor  # (R, k)
@@ -299,7 +299,7 @@ def rows_to_trees(srvfs: SlotRows, flat: Tensor, s: Tensor, root: Tensor, slot_p
     dev = srvfs.mean.device
     compiled = _compiled(srvfs.mean, srvfs.c, srvfs.comp, s, root)
     if compiled:
-        seg = segments(srvfs, M)  # (R, M), the SRVFs themselves are never stored
+        seg, raw = integrate_rows(srvfs, M, d)  # (R, M) and the curves; the SRVFs themselves are never stored
     else:
         q = srvfs.dense(d)
         seg = segment_lengths(q)
@@ -339,7 +339,7 @@ def rows_to_trees(srvfs: SlotRows, flat: Tensor, s: Tensor, root: Tensor, slot_p
     start = root.to(seg.dtype)[tree]  # (K, d); main branches start at the root
     s_out = arc_table[order].clamp(0, 1)
     if compiled:
-        pts = place_branches(srvfs, seg, rows, gp, sc, s_out, start)
+        pts = place_branches(raw, seg, rows, gp, sc, s_out, start)
     else:
         layers = [(depth == k).nonzero()[:, 0] for k in range(1, len(depth_slots) + 1)]
         pts = _place_torch(q, seg, rows, gp, sc, s_out, start, layers)

@@ -3,11 +3,16 @@
 Decoding a batch of trees ends with, per kept branch in packed depth-first order: integrate its SRVF from its start
 (the root, or its parent's curve at ``s``), resample it uniformly in arc length, and snap its first point back onto
 its (resampled) parent. In torch that is a dozen passes over ``(K, T, d)`` tensors (gathers, cumulative sums,
-``searchsorted``), memory traffic that dominated a decoded 4D geodesic; this kernel does it in one pass per branch.
-Parents come before their children in the packed order, so one loop over the branches sees every parent finished.
-The SRVFs come in the factored form of :class:`~torch4dtree.trees.aligned.SlotRows` (row ``r`` is
-``mean[slot[r]] + c[r] @ comp[slot[r]]``, a PCA decode) and are computed row by row where needed, never stored: a
-``(R, M, d)`` buffer is memory traffic and fresh pages (costly on a virtual machine) for values used twice.
+``searchsorted``), memory traffic that dominated a decoded 4D geodesic. Here it takes three passes:
+
+1. :func:`integrate_rows`: every SRVF row, once, to its segment lengths and its curve from the origin. The SRVFs
+   come in the factored form of :class:`~torch4dtree.trees.aligned.SlotRows` (row ``r`` is
+   ``mean[slot[r]] + c[r] @ comp[slot[r]]``, a PCA decode) and are computed row by row, never stored.
+2. :func:`place_branches`, in threads: each kept branch resampled from its row's curve, and where it starts on its
+   parent's curve (both still relative to their own origins, so the branches are independent).
+3. then, serially in packed order (parents first): the starts added and each child snapped onto its resampled
+   parent, a cheap pass.
+
 The torch code in ``aligned.py`` stays the differentiable path (and the reference the tests compare this with).
 """
 
@@ -20,6 +25,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from ..curves.dp_numba import run_interleaved
+
 if TYPE_CHECKING:
     from .aligned import SlotRows
 
@@ -31,7 +38,10 @@ except ImportError:  # pragma: no cover - exercised only without numba
     numba = None
     HAVE_NUMBA = False
 
-__all__ = ["HAVE_NUMBA", "place_branches", "segments", "warm_up"]
+__all__ = ["HAVE_NUMBA", "integrate_rows", "place_branches", "warm_up"]
+
+# rows per thread: waking a pool thread costs about as much as decoding this many rows (measured on 2 cores)
+ROWS_PER_THREAD = 512
 
 
 if HAVE_NUMBA:
@@ -48,79 +58,61 @@ if HAVE_NUMBA:
             for f in range(MD):  # contiguous: vectorised
                 buf[f] += ca * comp[j, a, f]
 
-    @numba.njit(cache=True, boundscheck=False)
-    def _nb_segments(c: np.ndarray, slot: np.ndarray, mean: np.ndarray, comp: np.ndarray, seg: np.ndarray) -> None:
-        """``seg (R, M) = |q_r|^2 / M`` of every SRVF row (the factored rows of :func:`_nb_row`)."""
+    @numba.njit(cache=True, nogil=True, boundscheck=False)
+    def _nb_integrate(c: np.ndarray, slot: np.ndarray, mean: np.ndarray, comp: np.ndarray, begin: int, step: int,
+                      seg: np.ndarray, raw: np.ndarray) -> None:
+        """Rows ``begin, begin + step, ...``: ``seg[r] (M,) = |q_r|^2 / M`` and ``raw[r] (M + 1, d)``, the curve of
+        ``q_r`` from the origin (steps ``q |q| / M = q sqrt(seg) / sqrt(M)``)."""
         R, M = seg.shape
-        d = mean.shape[1] // M
-        buf = np.empty(mean.shape[1])
-        for r in range(R):
-            _nb_row(c, slot, mean, comp, r, buf)
+        d = raw.shape[2]
+        q = np.empty(mean.shape[1])
+        inv_sqrt_m = 1.0 / math.sqrt(M)
+        for r in range(begin, R, step):
+            _nb_row(c, slot, mean, comp, r, q)
+            for e in range(d):
+                raw[r, 0, e] = 0.0
             for m in range(M):
                 acc = 0.0
                 for e in range(d):
-                    acc += buf[m * d + e] * buf[m * d + e]
-                seg[r, m] = acc / M
+                    acc += q[m * d + e] * q[m * d + e]
+                sm = acc / M
+                seg[r, m] = sm
+                f = math.sqrt(sm) * inv_sqrt_m
+                for e in range(d):
+                    raw[r, m + 1, e] = raw[r, m, e] + q[m * d + e] * f
 
-    @numba.njit(cache=True, boundscheck=False)
-    def _nb_place(c: np.ndarray, slot: np.ndarray, mean: np.ndarray, comp: np.ndarray, seg: np.ndarray,
-                  rows: np.ndarray, gp: np.ndarray, sc: np.ndarray, s_out: np.ndarray, start: np.ndarray,
-                  pts: np.ndarray) -> None:
-        """Fill ``pts (K, T, d)``; ``start (K, d)`` is overwritten (children's starts).
-
-        ``c, slot, mean, comp``: the SRVF rows (:func:`_nb_row`), ``seg (R, M)`` their segment lengths; branch ``i``
-        uses row ``rows[i]``, hangs on packed branch ``gp[i]`` (itself for a main branch, which starts at
-        ``start[i]``) at parameter ``sc[i]`` of the parent's curve before resampling, and is snapped to arc-length
-        fraction ``s_out[i]`` of the resampled parent.
-        """
+    @numba.njit(cache=True, nogil=True, boundscheck=False)
+    def _nb_resample(seg: np.ndarray, raw: np.ndarray, rows: np.ndarray, gp: np.ndarray, sc: np.ndarray,
+                     begin: int, step: int, offset: np.ndarray, pts: np.ndarray) -> None:
+        """Branches ``begin, begin + step, ...``: ``pts[i] (T, d)``, row ``rows[i]``'s curve resampled uniformly in
+        arc length, and ``offset[i] (d,)``, the point at parameter ``sc[i]`` of its parent's (``gp[i]``) curve
+        before resampling (zero for a main branch, ``gp[i] == i``); both relative to their curve's origin."""
         K = rows.shape[0]
         M = seg.shape[1]
-        d = mean.shape[1] // M
+        d = raw.shape[2]
         T = M + 1
-        q = np.empty(M * d)
-        # children of every branch (counting sort by parent): a branch places its children's starts while its
-        # own curve before resampling is at hand, so no (K, T, d) scratch is needed
-        first = np.zeros(K + 1, dtype=np.int64)
-        for i in range(K):
-            if gp[i] != i:
-                first[gp[i] + 1] += 1
-        for i in range(K):
-            first[i + 1] += first[i]
-        fill = first[:K].copy()
-        child = np.empty(max(first[K], 1), dtype=np.int64)
-        for i in range(K):
-            if gp[i] != i:
-                child[fill[gp[i]]] = i
-                fill[gp[i]] += 1
-        raw = np.empty((T, d))
         cum = np.empty(T)
-        inv_sqrt_m = 1.0 / math.sqrt(M)
-        for i in range(K):
+        for i in range(begin, K, step):
             r = rows[i]
             p = gp[i]
-            _nb_row(c, slot, mean, comp, r, q)
-            # inverse SRVF from the start: steps q |q| / M = q sqrt(seg) / sqrt(M)
-            for e in range(d):
-                raw[0, e] = start[i, e]
-            cum[0] = 0.0
-            for m in range(M):
-                sm = seg[r, m]
-                f = math.sqrt(sm) * inv_sqrt_m if sm > 0 else 0.0
-                cum[m + 1] = cum[m] + sm
+            if p == i:
                 for e in range(d):
-                    raw[m + 1, e] = raw[m, e] + q[m * d + e] * f
-            for h in range(first[i], first[i + 1]):  # children start on this curve at sc (interpolate_curve)
-                ch = child[h]
-                x = min(max(sc[ch], 0.0), 1.0) * M
+                    offset[i, e] = 0.0
+            else:  # interpolate_curve on the parent's curve
+                pr = rows[p]
+                x = min(max(sc[i], 0.0), 1.0) * M
                 lo = min(int(math.floor(x)), M - 1)
                 fr = x - lo
                 for e in range(d):
-                    start[ch, e] = raw[lo, e] + fr * (raw[lo + 1, e] - raw[lo, e])
+                    offset[i, e] = raw[pr, lo, e] + fr * (raw[pr, lo + 1, e] - raw[pr, lo, e])
+            cum[0] = 0.0
+            for m in range(M):
+                cum[m + 1] = cum[m] + seg[r, m]
             # uniform in arc length (searchsorted right, clamped to [1, T-1]: a zero-length curve gives its start)
-            step = cum[M] / (T - 1)
+            stride = cum[M] / (T - 1)
             hi = 1
             for j in range(T):
-                target = step * j
+                target = stride * j
                 while hi < T - 1 and cum[hi] <= target:
                     hi += 1
                 lo = hi - 1
@@ -128,8 +120,26 @@ if HAVE_NUMBA:
                 fr = (target - cum[lo]) / width if width > 0 else 0.0
                 fr = min(max(fr, 0.0), 1.0)
                 for e in range(d):
-                    pts[i, j, e] = raw[lo, e] + fr * (raw[lo + 1, e] - raw[lo, e])
-            if p != i:  # back onto the resampled parent (resampling moves it by chord effects)
+                    pts[i, j, e] = raw[r, lo, e] + fr * (raw[r, lo + 1, e] - raw[r, lo, e])
+
+    @numba.njit(cache=True, boundscheck=False)
+    def _nb_starts(gp: np.ndarray, offset: np.ndarray, start: np.ndarray) -> None:
+        """In packed order (parents first): a side branch ``i`` starts at its parent's start plus ``offset[i]``
+        (``start (K, d)`` is overwritten; a main branch, ``gp[i] == i``, keeps its own)."""
+        for i in range(gp.shape[0]):
+            p = gp[i]
+            if p != i:
+                for e in range(start.shape[1]):
+                    start[i, e] = start[p, e] + offset[i, e]
+
+    @numba.njit(cache=True, boundscheck=False)
+    def _nb_snap(gp: np.ndarray, s_out: np.ndarray, pts: np.ndarray) -> None:
+        """In packed order: each side branch's first point onto arc-length fraction ``s_out[i]`` of its resampled
+        parent (resampling moves the parent's curve by chord effects)."""
+        T, d = pts.shape[1], pts.shape[2]
+        for i in range(gp.shape[0]):
+            p = gp[i]
+            if p != i:
                 x = s_out[i] * (T - 1)
                 lo = min(int(math.floor(x)), T - 2)
                 fr = x - lo
@@ -143,21 +153,43 @@ def _arrays(rows: SlotRows) -> list[np.ndarray]:
     return [x.detach().contiguous().numpy() for x in (rows.c, slot, rows.mean, rows.comp)]
 
 
-def segments(rows: SlotRows, M: int) -> Tensor:
-    """``|q|^2 / M`` of the SRVF rows (float64, CPU, no gradients): ``(R, M)``."""
-    seg = torch.empty(len(rows.c), M, dtype=rows.mean.dtype)
-    _nb_segments(*_arrays(rows), seg.numpy())
-    return seg
+def _threads(items: int) -> int:
+    """Threads for ``items`` rows: one per ``ROWS_PER_THREAD`` (waking a thread costs about as many rows)."""
+    return max(1, min(numba.get_num_threads(), items // ROWS_PER_THREAD))
 
 
-def place_branches(rows: SlotRows, seg: Tensor, order: Tensor, gp: Tensor, sc: Tensor, s_out: Tensor,
+def integrate_rows(rows: SlotRows, M: int, d: int) -> tuple[Tensor, np.ndarray]:
+    """Segment lengths ``seg (R, M) = |q|^2 / M`` of the SRVF rows and their curves from the origin
+    ``(R, M + 1, d)`` (numpy, for :func:`place_branches`). Float64, CPU, no gradients."""
+    R = len(rows.c)
+    seg = torch.empty(R, M, dtype=rows.mean.dtype)
+    raw = np.empty((R, M + 1, d))
+    arrays = _arrays(rows)
+    seg_n = seg.numpy()
+    run_interleaved(lambda begin, step: _nb_integrate(*arrays, begin, step, seg_n, raw), _threads(R))
+    return seg, raw
+
+
+def place_branches(raw: np.ndarray, seg: Tensor, order: Tensor, gp: Tensor, sc: Tensor, s_out: Tensor,
                    start: Tensor) -> Tensor:
-    """The kernel on torch tensors (float64, CPU, no gradients): shapes as in :func:`_nb_place` (``order`` is its
-    ``rows``); returns ``pts (K, M + 1, d)``."""
+    """The branches' points ``(K, M + 1, d)`` in packed order (float64, CPU, no gradients).
+
+    Branch ``i`` is SRVF row ``order[i]`` (its curve from the origin ``raw`` and segment lengths ``seg (R, M)``,
+    from :func:`integrate_rows`); it hangs on packed branch ``gp[i]`` (itself for a main branch, which starts at
+    ``start[i]``, ``start (K, d)``) at parameter ``sc[i]`` of the parent's curve before resampling, and is snapped
+    to arc-length fraction ``s_out[i]`` of the resampled parent. Parents come before their children.
+    """
     K, M, d = order.shape[0], seg.shape[1], start.shape[1]
     pts = torch.empty(K, M + 1, d, dtype=seg.dtype)
-    arr = [x.detach().contiguous().numpy() for x in (seg, order, gp, sc, s_out)]
-    _nb_place(*_arrays(rows), *arr, start.detach().clone().numpy(), pts.numpy())
+    offset = np.empty((K, d))
+    seg_n, order_n, gp_n, sc_n, s_out_n = [x.detach().contiguous().numpy() for x in (seg, order, gp, sc, s_out)]
+    out = pts.numpy()
+    run_interleaved(lambda begin, step: _nb_resample(seg_n, raw, order_n, gp_n, sc_n, begin, step, offset, out),
+                    _threads(K))
+    starts = start.detach().clone()
+    _nb_starts(gp_n, offset, starts.numpy())
+    pts += starts[:, None]  # torch: numba's loop over a runtime d = 3 does not vectorise
+    _nb_snap(gp_n, s_out_n, out)
     return pts
 
 
@@ -168,5 +200,6 @@ def warm_up() -> None:
     if HAVE_NUMBA:
         rows = SlotRows.of(torch.zeros(2, 2, 3, dtype=torch.float64))
         s = torch.zeros(2, dtype=torch.float64)
-        place_branches(rows, segments(rows, 2), torch.arange(2), torch.zeros(2, dtype=torch.long), s, s,
+        seg, raw = integrate_rows(rows, 2, 3)
+        place_branches(raw, seg, torch.arange(2), torch.zeros(2, dtype=torch.long), s, s,
                        torch.zeros(2, 3, dtype=torch.float64))

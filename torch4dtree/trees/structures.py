@@ -197,24 +197,35 @@ class Trees:
         return self.with_points(self.points + offset[self.tree_index].unsqueeze(1))
 
     def __getitem__(self, index: int | slice | Sequence[int] | Tensor) -> Trees:
-        """Select trees: an int, a slice, a list or a tensor of tree indices."""
-        if isinstance(index, int):
-            if not -self.num_trees <= index < self.num_trees:
-                raise IndexError(f"tree index {index} out of range for {self.num_trees} trees")
-            index = [index % self.num_trees]
-        elif isinstance(index, slice):
-            index = list(range(self.num_trees))[index]
-        idx = torch.as_tensor(index, dtype=torch.long).reshape(-1).tolist()
+        """Select trees: an int, a slice, a list or a tensor of tree indices (negative ones count from the end)."""
+        n = self.num_trees
+        if isinstance(index, slice):
+            idx = list(range(n))[index]
+        else:
+            idx = torch.as_tensor(index, dtype=torch.long).reshape(-1).tolist()
+        if any(not -n <= t < n for t in idx):
+            raise IndexError(f"tree index {index} out of range for {n} trees")
+        idx = [t % n for t in idx]
         ptr = self.ptr.tolist()
-        if idx and idx == list(range(idx[0], idx[0] + len(idx))) and idx[0] >= 0:  # a run of trees: views
+        # whole trees of a valid batch make a valid batch: no need to check them again
+        if idx and idx == list(range(idx[0], idx[0] + len(idx))):  # a run of trees: views
             a, b = ptr[idx[0]], ptr[idx[-1] + 1]
-            return Trees(self.points[a:b], self.parent[a:b], self.s[a:b], self.num_branches[idx[0]:idx[-1] + 1],
-                         self.label[a:b])
+            return Trees._unchecked(self.points[a:b], self.parent[a:b], self.s[a:b],
+                                    self.num_branches[idx[0]:idx[-1] + 1], self.label[a:b])
         rows = [i for t in idx for i in range(ptr[t], ptr[t + 1])]
         sel = torch.tensor(rows, dtype=torch.long, device=self.device)
-        return Trees(
-            self.points[sel], self.parent[sel], self.s[sel], self.num_branches[idx], self.label[sel]
-        )
+        return Trees._unchecked(self.points[sel], self.parent[sel], self.s[sel], self.num_branches[idx],
+                                self.label[sel])
+
+    @classmethod
+    def _unchecked(cls, points: Tensor, parent: Tensor, s: Tensor, num_branches: Tensor, label: Tensor) -> Trees:
+        """A batch built from whole trees of a valid one, skipping ``__post_init__``'s checks (a dozen small tensor
+        ops, more than the slicing itself costs)."""
+        trees = object.__new__(cls)
+        for name, value in zip(("points", "parent", "s", "num_branches", "label"),
+                               (points, parent, s, num_branches, label)):
+            object.__setattr__(trees, name, value)
+        return trees
 
     def split(self) -> list[Trees]:
         """One single-tree batch per tree."""
