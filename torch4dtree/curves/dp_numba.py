@@ -21,7 +21,6 @@ import os
 import sys
 import threading
 import time
-from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -724,21 +723,15 @@ def run_pairs(curves: bool, mov: np.ndarray, ref: np.ndarray, srvf_input: bool, 
 
     if not _READY:
         _first_call(bool(curves), mov[:0], ref[:0], bool(srvf_input), *steps, cfg, up, float(tol), 0, 1, *outs)
-    run_interleaved(share, pair_threads(B))
-    return outs
-
-
-def run_interleaved(share: Callable[[int, int], None], threads: int) -> None:
-    """``share(start, step)`` for ``start = 0 .. threads - 1`` with ``step = threads``, on the shared pool (the
-    calling thread takes start 0). Interleaved shares, because neighbouring items often cost alike; ``share``
-    must call a ``nogil`` kernel for the threads to run at once."""
-    if threads <= 1:
+    threads = pair_threads(B)
+    if threads == 1:
         share(0, 1)
-        return
-    futures = [_pool().submit(share, k, threads) for k in range(1, threads)]
-    share(0, threads)
-    for f in futures:
-        f.result()
+    else:  # interleaved shares: neighbouring pairs often cost alike
+        futures = [_pool().submit(share, k, threads) for k in range(1, threads)]
+        share(0, threads)
+        for f in futures:
+            f.result()
+    return outs
 
 
 def warm_up() -> float | None:

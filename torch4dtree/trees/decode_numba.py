@@ -8,10 +8,13 @@ its (resampled) parent. In torch that is a dozen passes over ``(K, T, d)`` tenso
 1. :func:`integrate_rows`: every SRVF row, once, to its segment lengths and its curve from the origin. The SRVFs
    come in the factored form of :class:`~torch4dtree.trees.aligned.SlotRows` (row ``r`` is
    ``mean[slot[r]] + c[r] @ comp[slot[r]]``, a PCA decode) and are computed row by row, never stored.
-2. :func:`place_branches`, in threads: each kept branch resampled from its row's curve, and where it starts on its
-   parent's curve (both still relative to their own origins, so the branches are independent).
-3. then, serially in packed order (parents first): the starts added and each child snapped onto its resampled
-   parent, a cheap pass.
+2. :func:`place_branches`: each kept branch resampled from its row's curve, and where it starts on its parent's
+   curve (both relative to their own origins);
+3. then, in packed order (parents first): the starts added and each child snapped onto its resampled parent.
+
+Each pass treats the branches independently, so threads could share the first two; on this project's 2-core
+machine two threads were slower than one (a decoded tomato 4D geodesic: 28.8 against 24.8 ms, median), so they run
+on the calling thread.
 
 The torch code in ``aligned.py`` stays the differentiable path (and the reference the tests compare this with).
 """
@@ -25,8 +28,6 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ..curves.dp_numba import run_interleaved
-
 if TYPE_CHECKING:
     from .aligned import SlotRows
 
@@ -39,9 +40,6 @@ except ImportError:  # pragma: no cover - exercised only without numba
     HAVE_NUMBA = False
 
 __all__ = ["HAVE_NUMBA", "integrate_rows", "place_branches", "warm_up"]
-
-# rows per thread: waking a pool thread costs about as much as decoding this many rows (measured on 2 cores)
-ROWS_PER_THREAD = 512
 
 
 if HAVE_NUMBA:
@@ -58,16 +56,16 @@ if HAVE_NUMBA:
             for f in range(MD):  # contiguous: vectorised
                 buf[f] += ca * comp[j, a, f]
 
-    @numba.njit(cache=True, nogil=True, boundscheck=False)
-    def _nb_integrate(c: np.ndarray, slot: np.ndarray, mean: np.ndarray, comp: np.ndarray, begin: int, step: int,
-                      seg: np.ndarray, raw: np.ndarray) -> None:
-        """Rows ``begin, begin + step, ...``: ``seg[r] (M,) = |q_r|^2 / M`` and ``raw[r] (M + 1, d)``, the curve of
-        ``q_r`` from the origin (steps ``q |q| / M = q sqrt(seg) / sqrt(M)``)."""
+    @numba.njit(cache=True, boundscheck=False)
+    def _nb_integrate(c: np.ndarray, slot: np.ndarray, mean: np.ndarray, comp: np.ndarray, seg: np.ndarray,
+                      raw: np.ndarray) -> None:
+        """Every row ``r``: ``seg[r] (M,) = |q_r|^2 / M`` and ``raw[r] (M + 1, d)``, the curve of ``q_r`` from the
+        origin (steps ``q |q| / M = q sqrt(seg) / sqrt(M)``)."""
         R, M = seg.shape
         d = raw.shape[2]
         q = np.empty(mean.shape[1])
         inv_sqrt_m = 1.0 / math.sqrt(M)
-        for r in range(begin, R, step):
+        for r in range(R):
             _nb_row(c, slot, mean, comp, r, q)
             for e in range(d):
                 raw[r, 0, e] = 0.0
@@ -81,10 +79,10 @@ if HAVE_NUMBA:
                 for e in range(d):
                     raw[r, m + 1, e] = raw[r, m, e] + q[m * d + e] * f
 
-    @numba.njit(cache=True, nogil=True, boundscheck=False)
+    @numba.njit(cache=True, boundscheck=False)
     def _nb_resample(seg: np.ndarray, raw: np.ndarray, rows: np.ndarray, gp: np.ndarray, sc: np.ndarray,
-                     begin: int, step: int, offset: np.ndarray, pts: np.ndarray) -> None:
-        """Branches ``begin, begin + step, ...``: ``pts[i] (T, d)``, row ``rows[i]``'s curve resampled uniformly in
+                     offset: np.ndarray, pts: np.ndarray) -> None:
+        """Every branch ``i``: ``pts[i] (T, d)``, row ``rows[i]``'s curve resampled uniformly in
         arc length, and ``offset[i] (d,)``, the point at parameter ``sc[i]`` of its parent's (``gp[i]``) curve
         before resampling (zero for a main branch, ``gp[i] == i``); both relative to their curve's origin."""
         K = rows.shape[0]
@@ -92,7 +90,7 @@ if HAVE_NUMBA:
         d = raw.shape[2]
         T = M + 1
         cum = np.empty(T)
-        for i in range(begin, K, step):
+        for i in range(K):
             r = rows[i]
             p = gp[i]
             if p == i:
@@ -153,20 +151,13 @@ def _arrays(rows: SlotRows) -> list[np.ndarray]:
     return [x.detach().contiguous().numpy() for x in (rows.c, slot, rows.mean, rows.comp)]
 
 
-def _threads(items: int) -> int:
-    """Threads for ``items`` rows: one per ``ROWS_PER_THREAD`` (waking a thread costs about as many rows)."""
-    return max(1, min(numba.get_num_threads(), items // ROWS_PER_THREAD))
-
-
 def integrate_rows(rows: SlotRows, M: int, d: int) -> tuple[Tensor, np.ndarray]:
     """Segment lengths ``seg (R, M) = |q|^2 / M`` of the SRVF rows and their curves from the origin
     ``(R, M + 1, d)`` (numpy, for :func:`place_branches`). Float64, CPU, no gradients."""
     R = len(rows.c)
     seg = torch.empty(R, M, dtype=rows.mean.dtype)
     raw = np.empty((R, M + 1, d))
-    arrays = _arrays(rows)
-    seg_n = seg.numpy()
-    run_interleaved(lambda begin, step: _nb_integrate(*arrays, begin, step, seg_n, raw), _threads(R))
+    _nb_integrate(*_arrays(rows), seg.numpy(), raw)
     return seg, raw
 
 
@@ -184,8 +175,7 @@ def place_branches(raw: np.ndarray, seg: Tensor, order: Tensor, gp: Tensor, sc: 
     offset = np.empty((K, d))
     seg_n, order_n, gp_n, sc_n, s_out_n = [x.detach().contiguous().numpy() for x in (seg, order, gp, sc, s_out)]
     out = pts.numpy()
-    run_interleaved(lambda begin, step: _nb_resample(seg_n, raw, order_n, gp_n, sc_n, begin, step, offset, out),
-                    _threads(K))
+    _nb_resample(seg_n, raw, order_n, gp_n, sc_n, offset, out)
     starts = start.detach().clone()
     _nb_starts(gp_n, offset, starts.numpy())
     pts += starts[:, None]  # torch: numba's loop over a runtime d = 3 does not vectorise
