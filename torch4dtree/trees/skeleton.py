@@ -21,6 +21,7 @@ the branches (splitting edges anywhere or merging collinear ones leaves it as is
 
 from __future__ import annotations
 
+import math
 from collections import Counter
 from collections.abc import Sequence
 
@@ -132,10 +133,11 @@ WINDOW_ORGAN_SHARE = 0.5  # the window at a branch point: a share of the side or
 SPUR_WINDOWS = 0.1
 
 
-def default_window(xyz: np.ndarray, parent: np.ndarray, edge: np.ndarray) -> float:
+def default_window(xyz: np.ndarray, parent: np.ndarray, edge: np.ndarray,
+                   children: list[list[int]] | None = None) -> float:
     """Floor of the ``"straightest"`` rule's direction window: ``WINDOW_EXTENT_SHARE`` of the farthest node's path
     distance from the root. Each branch point widens it to :func:`organ_window` (``continuation_children``)."""
-    return WINDOW_EXTENT_SHARE * float(_root_distances(parent, edge).max())
+    return WINDOW_EXTENT_SHARE * float(_root_distances(parent, edge, children).max())
 
 
 def organ_window(child_reach: np.ndarray, floor: float) -> float:
@@ -151,17 +153,32 @@ def organ_window(child_reach: np.ndarray, floor: float) -> float:
     return max(floor, WINDOW_ORGAN_SHARE * float(np.partition(child_reach, -2)[-2]))
 
 
-def _root_distances(parent: np.ndarray, edge: np.ndarray) -> np.ndarray:
-    """``(n,)`` path length from the root to every node."""
-    dist = np.zeros(len(parent))
-    children = _children(parent)
+def _root_distances(parent: np.ndarray, edge: np.ndarray, children: list[list[int]] | None = None) -> np.ndarray:
+    """``(n,)`` path length from the root to every node (``children``: :func:`_children`, if at hand)."""
+    children = _children(parent) if children is None else children
+    dist = [0.0] * len(parent)
+    length = edge.tolist()  # Python floats: the same sums, without numpy's per-element overhead
     stack = [int(np.nonzero(parent == -1)[0][0])]
     while stack:
         v = stack.pop()
         for c in children[v]:
-            dist[c] = dist[v] + edge[c]
+            dist[c] = dist[v] + length[c]
             stack.append(c)
-    return dist
+    return np.asarray(dist)
+
+
+def _subtree_lengths(order: np.ndarray, children: list[list[int]], edge: np.ndarray) -> tuple[list[float], list[float]]:
+    """Per node, the longest path down to a leaf (``reach``) and the total length below it (``weight``)."""
+    n = len(edge)
+    length = edge.tolist()
+    reach, weight = [0.0] * n, [0.0] * n
+    for v in order[::-1].tolist():
+        for c in children[v]:
+            through = length[c] + reach[c]
+            if through > reach[v]:
+                reach[v] = through
+            weight[v] += length[c] + weight[c]
+    return reach, weight
 
 
 def _point_up(xyz: np.ndarray, parent: np.ndarray, edge: np.ndarray, v: int, length: float) -> np.ndarray | None:
@@ -196,8 +213,9 @@ def _point_down(xyz: np.ndarray, parent: np.ndarray, children: list[list[int]], 
 
 
 def _angle(u: np.ndarray, v: np.ndarray) -> float:
-    cos = float(u @ v) / max(float(np.linalg.norm(u) * np.linalg.norm(v)), 1e-300)
-    return float(np.arccos(np.clip(cos, -1.0, 1.0)))
+    # np.linalg.norm of a vector is sqrt(x.dot(x)): the same numbers, without its overhead (a hot path)
+    norms = math.sqrt(float(u.dot(u))) * math.sqrt(float(v.dot(v)))
+    return math.acos(min(max(float(u @ v) / max(norms, 1e-300), -1.0), 1.0))
 
 
 def continuation_children(xyz: np.ndarray, parent: np.ndarray, order: np.ndarray, children: list[list[int]],
@@ -207,32 +225,31 @@ def continuation_children(xyz: np.ndarray, parent: np.ndarray, order: np.ndarray
     if hierarchy not in HIERARCHIES:
         raise TreeError(f"{where}: unknown hierarchy rule {hierarchy!r}; expected one of {', '.join(HIERARCHIES)}")
     n = len(xyz)
-    reach = np.zeros(n)  # longest path from a node down to a leaf
-    weight = np.zeros(n)  # total length of the subtree below a node
-    for v in order[::-1]:
-        for c in children[v]:
-            reach[v] = max(reach[v], edge[c] + reach[c])
-            weight[v] += edge[c] + weight[c]
-    down = edge + weight  # what hangs from a node's parent through that node
+    reach, weight = _subtree_lengths(order, children, edge)
+    length = edge.tolist()
+    path = [length[c] + reach[c] for c in range(n)]  # longest path from a node's parent through it
+    down = [length[c] + weight[c] for c in range(n)]  # what hangs from a node's parent through that node
     best = np.full(n, -1)
     floor = 0.0
     if hierarchy == "straightest":
         if window is not None and not window > 0:
             raise TreeError(f"{where}: the direction window must be positive, got {window}")
-        floor = default_window(xyz, parent, edge) if window is None else float(window)
-    for v in order:
+        floor = default_window(xyz, parent, edge, children) if window is None else float(window)
+    for v in order.tolist():
         kids = children[v]
-        if not kids:
+        if len(kids) < 2:  # a leaf, or a node inside a branch: every rule continues into its only child
+            if kids:
+                best[v] = kids[0]
             continue
         if hierarchy == "longest":
-            best[v] = max(kids, key=lambda c: (edge[c] + reach[c], -c))
+            best[v] = max(kids, key=lambda c: (path[c], -c))
             continue
         heaviest = max(kids, key=lambda c: (down[c], -c))
         if hierarchy != "straightest" or window is not None:
             w = floor
         else:
-            w = organ_window(edge[kids] + reach[kids], floor)
-        back = _point_up(xyz, parent, edge, v, w) if w > 0 and len(kids) > 1 else None
+            w = organ_window(np.array([path[c] for c in kids]), floor)
+        back = _point_up(xyz, parent, edge, v, w) if w > 0 else None
         if back is None:
             best[v] = heaviest
             continue
@@ -299,10 +316,7 @@ def skeleton_to_branches(
     xyz = np.asarray(xyz, dtype=np.float64)
     parent = np.asarray(parent, dtype=np.int64)
     order, children, edge, best = resolve_branch_points(xyz, parent, hierarchy, where, ids, window)
-    reach = np.zeros(len(xyz))  # longest path length from a node down to a leaf
-    for v in order[::-1]:
-        for c in children[v]:
-            reach[v] = max(reach[v], edge[c] + reach[c])
+    reach = _subtree_lengths(order, children, edge)[0]  # longest path length from a node down to a leaf
 
     def follow(start: int) -> list[int]:
         return follow_continuations(best, start)

@@ -329,9 +329,10 @@ def _build_one_tree(
         arr = arr.to(torch.float64)
         if arr.dim() != 2 or arr.shape[0] < 2:
             raise TreeError(f"{where}: branch {i} must be a polyline (n>=2, d), got {tuple(arr.shape)}")
-        if not torch.isfinite(arr).all():
+        check = arr.detach().cpu().numpy()  # the checks in numpy: a few small torch ops per branch cost more
+        if not np.isfinite(check).all():
             raise TreeError(f"{where}: branch {i} has NaN or infinite coordinates")
-        if float(curve_length(arr)) <= 0:
+        if not (np.diff(check, axis=0) != 0).any():
             raise TreeError(f"{where}: branch {i} is degenerate (zero length)")
         raw.append(arr)
         if not (parents[i] == -1 or 0 <= parents[i] < n) or parents[i] == i:
@@ -348,47 +349,63 @@ def _build_one_tree(
     # as before, turned the first segment by an amount that depended on the node spacing). A child that starts
     # off its parent is joined to it by a straight bridge from its attachment point instead.
     order: list[int] = []
-    new_index: dict[int, int] = {}
-    resampled: dict[int, Tensor] = {}
     s_of: dict[int, float] = {}
-    stack: list[tuple[int, float]] = [(roots[0], 0.0)]
+    layers: list[list[int]] = []  # branches by depth, to resample each layer in one batch
+    stack: list[tuple[int, float, int]] = [(roots[0], 0.0, 0)]
     while stack:
-        i, s_i = stack.pop()
-        pts = raw[i]
-        if parents[i] >= 0:  # start exactly on the (resampled) parent curve at s
-            par = resampled[parents[i]]
-            start = interpolate_curve(par[None], torch.tensor([[s_i]], dtype=pts.dtype))[0, 0]
-            gap = float((start - pts[0]).norm())
-            if gap <= BRIDGE_GAP * float((par[1] - par[0]).norm()):
-                pts = pts + (start - pts[0])
-            else:
-                pts = torch.cat([start[None], pts])
-        new_index[i] = len(order)
+        i, s_i, depth = stack.pop()
         order.append(i)
         s_of[i] = s_i
-        resampled[i] = resample_polylines(pts[None], torch.tensor([len(pts)]), T)[0]
+        if depth == len(layers):
+            layers.append([])
+        layers[depth].append(i)
         kids = children[i]
         if kids:
-            ks = [_arc_fraction_of_projection(raw[i], raw[k][0]) for k in kids]
+            ks = _arc_fractions_of_projections(raw[i], torch.stack([raw[k][0] for k in kids]))
             # popped in order of s; equal s keep their input order
-            stack.extend(sorted(zip(kids, ks), key=lambda kid_s: (-kid_s[1], -kid_s[0])))
+            stack.extend((k, s_k, depth + 1) for k, s_k in sorted(zip(kids, ks), key=lambda kid_s: (-kid_s[1],
+                                                                                                    -kid_s[0])))
     if len(order) != n:
         missing = sorted(set(range(n)) - set(order))
         raise TreeError(f"{where}: branches {missing} are not connected to the main branch (cycle?)")
+    resampled: dict[int, Tensor] = {}
+    for layer in layers:
+        pts_of = []
+        if parents[layer[0]] >= 0:  # start exactly on the (resampled) parent curves at s
+            par = torch.stack([resampled[parents[i]] for i in layer])
+            s_layer = torch.tensor([[s_of[i]] for i in layer], dtype=torch.float64)
+            starts = interpolate_curve(par, s_layer)[:, 0]
+            for i, start, pr in zip(layer, starts, par):
+                pts = raw[i]
+                gap = float((start - pts[0]).norm())
+                if gap <= BRIDGE_GAP * float((pr[1] - pr[0]).norm()):
+                    pts_of.append(pts + (start - pts[0]))
+                else:
+                    pts_of.append(torch.cat([start[None], pts]))
+        else:
+            pts_of = [raw[i] for i in layer]
+        counts = torch.tensor([len(p) for p in pts_of])
+        padded = torch.nn.utils.rnn.pad_sequence(pts_of, batch_first=True)
+        for i, r in zip(layer, resample_polylines(padded, counts, T)):
+            resampled[i] = r
+    new_index = {i: k for k, i in enumerate(order)}
     points = torch.stack([resampled[i] for i in order]).to(dtype)
     par = [-1 if parents[i] < 0 else new_index[parents[i]] for i in order]
     return points, par, [s_of[i] for i in order], [labels[i] for i in order]
 
 
-def _arc_fraction_of_projection(curve: Tensor, x: Tensor) -> float:
-    """Arc-length fraction of the closest point of a raw polyline ``(n, d)`` to ``x (d,)``."""
+def _arc_fractions_of_projections(curve: Tensor, xs: Tensor) -> list[float]:
+    """Arc-length fraction of the closest point of a raw polyline ``(n, d)`` to each point of ``xs (m, d)``."""
     seg = curve[1:] - curve[:-1]
     denom = (seg * seg).sum(-1)
-    u = (((x - curve[:-1]) * seg).sum(-1) / torch.where(denom > 0, denom, 1)).clamp(0, 1)
-    k = int((curve[:-1] + u[:, None] * seg - x).norm(dim=-1).argmin())
+    u = (((xs[:, None] - curve[:-1]) * seg).sum(-1) / torch.where(denom > 0, denom, 1)).clamp(0, 1)  # (m, n-1)
+    nearest = (curve[:-1] + u[..., None] * seg - xs[:, None]).norm(dim=-1).argmin(-1).tolist()
     lengths = denom.sqrt()
     total = float(lengths.sum())
-    return min(max(float(lengths[:k].sum() + u[k] * lengths[k]) / total, 0.0), 1.0) if total > 0 else 0.0
+    if not total > 0:
+        return [0.0] * len(xs)
+    return [min(max(float(lengths[:k].sum() + u[j, k] * lengths[k]) / total, 0.0), 1.0)
+            for j, k in enumerate(nearest)]
 
 
 @dataclass(frozen=True, eq=False)
