@@ -384,3 +384,20 @@ def test_pca_state_dict_and_errors(tmp_path, fitted):
         TreePCA(n_components=50).fit(res.aligned)
     with pytest.raises(ValueError, match="variance"):
         TreePCA(variance=0.0)
+
+
+@pytest.mark.parametrize("shape", [(7, 40), (40, 7), (6, 6)])
+def test_principal_axes_are_the_svd_of_the_rows(shape: tuple[int, int]) -> None:
+    """Wide (computed through the transpose), tall and square inputs: the singular values of the SVD, orthonormal
+    axes, and ``x`` rebuilt from its projections on them."""
+    from torch4dtree.space.pca import principal_axes
+
+    x = torch.randn(*shape, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
+    sing, axes = principal_axes(x)
+    r = min(shape)
+    assert sing.shape == (r,) and axes.shape == (r, shape[1])
+    torch.testing.assert_close(sing, torch.linalg.svdvals(x))
+    torch.testing.assert_close(axes @ axes.T, torch.eye(r, dtype=x.dtype))
+    torch.testing.assert_close((x @ axes.T) @ axes, x)
+    # the axes come in the order of the singular values: x's energy along axis i is sing[i]^2
+    torch.testing.assert_close((x @ axes.T).square().sum(0), sing.square())

@@ -23,6 +23,7 @@ from torch import Tensor
 from ..curves.rotation import optimal_rotation
 from ..curves.srvf import interpolate_curve, srvf, srvf_sq_distance
 from ..curves.warps import invert_warp, random_warp
+from ..space.pca import principal_axes
 from ..temporal.registration import register_trajectories, time_warp_trajectory
 from ..temporal.trajectory import OVERSAMPLE, fine_size, resample_trajectory
 from ..temporal.within import AlignedSequence, identity_accuracy, register_sequence
@@ -228,7 +229,7 @@ def _pca_trajectories(feats: list[Tensor], times: list[Tensor], k: int, n_t: int
     """Project every frame on the top ``k`` principal directions of all frames, resample on ``n_t`` times."""
     allf = torch.cat(feats)
     mean = allf.mean(0)
-    _, _, Vh = torch.linalg.svd(allf - mean, full_matrices=False)
+    Vh = principal_axes(allf - mean)[1]
     return [resample_trajectory((f - mean) @ Vh[:k].T, t.double(), n_t) for f, t in zip(feats, times)]
 
 

@@ -79,6 +79,7 @@ import torch
 from torch import Tensor
 
 from ..model import FourDTreeModel, TrajectoryMean
+from ..space.pca import principal_axes
 from ..temporal.registration import register_trajectories, time_warp_trajectory
 from ..temporal.trajectory import resample_trajectory
 from .data import EvalData, EvalSettings, Plant4D, primary_source
@@ -265,7 +266,7 @@ def _extended_frames(model: FourDTreeModel, encs: list[Any]) -> tuple[list[Tenso
     feats = [e.aligned.features().to(pca.mean) for e in encs]
     coefs = [e.frame_coefficients.to(pca.mean) for e in encs]
     offs = [f - pca.inverse_features(c) for f, c in zip(feats, coefs)]
-    _, sing, vh = torch.linalg.svd(torch.cat(offs), full_matrices=False)
+    sing, vh = principal_axes(torch.cat(offs))
     basis = vh[sing > 1e-10 * float(sing.max().clamp_min(1e-300))]
     ext = [torch.cat([c, o @ basis.T], 1) for c, o in zip(coefs, offs)]
     sq = [torch.stack([o.square().sum(-1), (f - pca.mean).square().sum(-1)]) for o, f in zip(offs, feats)]

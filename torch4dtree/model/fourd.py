@@ -20,7 +20,7 @@ from typing import Any, NamedTuple
 import torch
 from torch import Tensor, nn
 
-from ..space.pca import variance_components
+from ..space.pca import principal_axes, variance_components
 from ..temporal.population import Population
 from ..temporal.registration import time_warp_trajectory
 from ..temporal.spatiotemporal import CROSS_LP, CROSS_POSITIONS
@@ -532,7 +532,7 @@ def _subspace_projector(x: Tensor, n_components: int | None, variance: float) ->
     """The orthogonal projection onto the affine principal subspace of the rows of ``x`` (``n_components`` of them,
     or the fewest reaching ``variance`` of the variance, as :class:`TreePCA` keeps), as a function of ``(..., F)``."""
     mean = x.mean(0)
-    _, sing, vh = torch.linalg.svd(x - mean, full_matrices=False)
+    sing, vh = principal_axes(x - mean)
     var = sing.square()
     k = min(n_components, len(var)) if n_components is not None else variance_components(var, variance)
     basis = vh[:k]

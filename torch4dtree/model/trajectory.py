@@ -15,7 +15,7 @@ import torch
 from torch import Tensor
 
 from ..space.fitted import FittedModule, NotFittedError
-from ..space.pca import check_components, variance_components
+from ..space.pca import check_components, principal_axes, variance_components
 from ..temporal.registration import TemporalRegistration, register_trajectories, time_warp_trajectory
 from ..temporal.trajectory import trajectory_from_srvf, trajectory_srvf
 from ..temporal.within import _inverse_at
@@ -198,7 +198,7 @@ class TrajectoryPCA(FittedModule):
         mean = X.mean(0) if center is None else center.detach().to(X)
         if mean.shape != X.shape[1:]:
             raise ValueError(f"center must be ({X.shape[1]},), got {tuple(mean.shape)}")
-        _, sing, Vh = torch.linalg.svd(X - mean, full_matrices=False)
+        sing, Vh = principal_axes(X - mean)
         var = sing.square() / (N - 1)
         total = float(var.sum())
         ratio = var / total if total > 0 else torch.zeros_like(var)

@@ -27,6 +27,19 @@ __all__ = ["TreePCA"]
 DECODE_MIN_FRACTION = 0.01
 
 
+def principal_axes(x: Tensor) -> tuple[Tensor, Tensor]:
+    """Singular values ``(r,)`` and right singular vectors ``(r, F)`` of ``x (n, F)``, ``r = min(n, F)``.
+
+    For ``n < F`` (a few trees or plants, many features) this is the SVD of the transpose: LAPACK factors the tall
+    matrix several times faster than the wide one (114 x 20000 on this project's machine: 0.12 against 0.84 s).
+    """
+    if x.shape[0] < x.shape[1]:
+        U, sing, _ = torch.linalg.svd(x.T, full_matrices=False)
+        return sing, U.T
+    _, sing, Vh = torch.linalg.svd(x, full_matrices=False)
+    return sing, Vh
+
+
 def variance_components(var: Tensor, variance: float) -> int:
     """The smallest ``k`` whose leading variances ``var`` (descending) reach the share ``variance`` of their sum (a
     rounding margin so that an exact share counts as reached); 1 if they sum to 0."""
@@ -139,9 +152,7 @@ class TreePCA(FittedModule):
         X = aligned.features().detach()
         mean = X.mean(0)
         Xc = X - mean
-        # LAPACK is ~3x faster on the tall matrix than on the wide one (n trees << F features); same factors
-        U, sing, _ = torch.linalg.svd(Xc.T, full_matrices=False)
-        Vh = U.T
+        sing, Vh = principal_axes(Xc)
         var = sing.square() / (n - 1)
         total = float(Xc.square().sum()) / (n - 1)
         if not total > 0:
