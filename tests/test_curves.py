@@ -147,3 +147,26 @@ def test_two_point_curves_are_curves():
     torch.testing.assert_close(srvf_sq_norm(q), torch.tensor([5.0], dtype=torch.float64))
     with pytest.raises(ValueError, match="at least 2 points"):
         srvf(beta[:, :1])
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_warp_energies_of_one_pair(compiled: bool, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The tree registration's energies of several warps of one SRVF pair: ``||q1 - warp_srvf(q2, g)||^2`` per warp,
+    by the numba kernel and by the torch ops alike; the identity warp gives the plain distance."""
+    from torch4dtree.curves import register
+    from torch4dtree.curves.srvf import srvf_sq_distance, warp_srvf
+    from torch4dtree.curves.warps import random_warp
+
+    if compiled and not register.HAVE_NUMBA:
+        pytest.skip("numba is not installed")
+    monkeypatch.setattr(register, "HAVE_NUMBA", compiled)
+    g = torch.Generator().manual_seed(3)
+    q1, q2 = torch.randn(2, 20, 3, generator=g, dtype=torch.float64)
+    gammas = torch.cat([torch.linspace(0, 1, 21, dtype=torch.float64)[None],
+                        random_warp(4, 21, generator=g).to(torch.float64)])
+    got = register.warp_energies(q1, q2, gammas.numpy())
+    want = srvf_sq_distance(q1, warp_srvf(q2.expand(5, -1, -1), gammas))
+    assert got.shape == (5,)
+    torch.testing.assert_close(torch.from_numpy(got), want, rtol=1e-10, atol=1e-12)
+    assert got[0] == pytest.approx(float(srvf_sq_distance(q1, q2)), rel=1e-12)
+    assert len(set(got.round(6).tolist())) == 5  # the warps matter

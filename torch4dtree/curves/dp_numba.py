@@ -380,6 +380,14 @@ if HAVE_NUMBA:
         _nb_inverse_srvf(q, beta)
         return beta
 
+    @numba.njit(cache=True, boundscheck=False)
+    def _nb_warp_energies(q1: np.ndarray, q2: np.ndarray, gammas: np.ndarray, out: np.ndarray) -> None:
+        """``out[i] = ||q1 - warp_srvf(q2, gammas[i])||^2`` for warps ``gammas (n, M+1)`` of one SRVF pair."""
+        beta2 = _nb_inverse_from(q2)
+        eye = np.eye(q1.shape[1])
+        for i in range(gammas.shape[0]):
+            out[i] = _nb_energy(q1, beta2, gammas[i], eye)
+
     @numba.njit(cache=True, boundscheck=False, inline="always")
     def _nb_dp_search(q1: np.ndarray, QW: np.ndarray, SS: np.ndarray, off: np.ndarray, A: np.ndarray,
                       Bs: np.ndarray, n: int, band: int, init: np.ndarray, gamma: np.ndarray) -> float:
@@ -701,6 +709,8 @@ def _first_call(*args: object, hint: bool = True) -> float | None:
             # the temporal registration's refinement on a finer moving trajectory (its real calls' argument types)
             _nb_refine_finer(np.zeros((0, 2, 1)), np.zeros((0, 3, 1)), np.zeros((0, 3)), 0, np.ones(1, np.int64),
                              np.zeros(0, np.bool_))
+            # the tree registration's energies of several warps of one parent pair
+            _nb_warp_energies(np.zeros((1, 3)), np.zeros((1, 3)), np.zeros((0, 2)), np.zeros(0))
         _READY = True
         return notice.seconds
 
@@ -748,6 +758,13 @@ def warm_up() -> float | None:
     # the same argument types as run_pairs, so this compiles (or loads) the one signature real calls use
     return _first_call(True, z, z, False, A, Bs, A, Bs, np.zeros(9, np.int64), np.zeros(3), 0.0, 0, 1, *outs,
                        hint=False)
+
+
+def warp_energies_numba(q1: np.ndarray, q2: np.ndarray, gammas: np.ndarray) -> np.ndarray:
+    """:func:`_nb_warp_energies` on float64 arrays ``q1, q2 (M, d)``, ``gammas (n, M+1)``: ``(n,)``."""
+    out = np.empty(gammas.shape[0])
+    _nb_warp_energies(q1, q2, np.ascontiguousarray(gammas, dtype=np.float64), out)
+    return out
 
 
 def _dp_numba(q1: Tensor, q2: Tensor, n: int, lo: np.ndarray, hi: np.ndarray) -> tuple[Tensor, Tensor]:

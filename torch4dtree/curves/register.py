@@ -25,14 +25,14 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from .dp_numba import HAVE_NUMBA, _dp_numba, run_pairs
+from .dp_numba import HAVE_NUMBA, _dp_numba, run_pairs, warp_energies_numba
 from .dp_torch import _dp_torch
 from .refinement import gauss_newton_torch
 from .rotation import axis_rotation, check_rotation_mode, optimal_rotation
 from .srvf import interpolate_curve, inverse_srvf, srvf, srvf_sq_distance, uniform_grid, warp_curve, warp_srvf
 from .warps import _band_around, _reachable_band, _step_arrays, identity_warp, warp_energy
 
-__all__ = ["CurveRegistration", "DPWarp", "dp_warp", "elastic_distance", "register_curves"]
+__all__ = ["CurveRegistration", "DPWarp", "dp_warp", "elastic_distance", "register_curves", "warp_energies"]
 
 
 # ----------------------------------------------------------------------------- DP driver
@@ -64,6 +64,16 @@ class CurveRegistration(NamedTuple):
     energy_before: Tensor
     registered: Tensor
     q_registered: Tensor
+
+
+def warp_energies(q1: Tensor, q2: Tensor, gammas: np.ndarray) -> np.ndarray:
+    """``||q1 - warp_srvf(q2, g)||^2`` for every warp ``g`` of ``gammas (n, M+1)`` of one pair ``q1, q2 (M, d)``,
+    without gradients: ``(n,)``. The numba kernel on CPU float64 (small torch ops cost ~0.1 ms each, and the tree
+    registration asks this of every parent pair several times); the torch ops otherwise."""
+    if HAVE_NUMBA and q1.device.type == "cpu" and q1.dtype == torch.float64 and q2.dtype == torch.float64:
+        return warp_energies_numba(q1.detach().numpy(), q2.detach().numpy(), gammas)
+    g = torch.as_tensor(gammas, dtype=q2.dtype, device=q2.device)
+    return srvf_sq_distance(q1.detach(), warp_srvf(q2.detach().expand(len(g), -1, -1), g)).cpu().numpy()
 
 
 def _resample_srvf(q: Tensor, M: int) -> Tensor:

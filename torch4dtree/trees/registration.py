@@ -53,7 +53,7 @@ import torch
 from scipy.optimize import linear_sum_assignment
 from torch import Tensor
 
-from ..curves.register import DPWarp, dp_warp, register_curves
+from ..curves.register import DPWarp, dp_warp, register_curves, warp_energies
 from ..curves.rotation import axis_rotation, check_rotation_mode, kabsch, vertical_rotation
 from ..curves.srvf import srvf, srvf_sq_norm, warp_srvf
 from ..curves.warps import invert_warp
@@ -423,7 +423,7 @@ def _refit_to_children(ref_q: Tensor, mov_q: Tensor, gamma: np.ndarray, s_mov: n
         cost = sub + lp * (s_now[:, None] - s_ref[None, :]) ** 2
         return _match_children(cost, null_mov, null_ref, s_now, s_ref, order_tol)
 
-    E0 = float(srvf_sq_norm(ref_q - warp_srvf(mov_q, torch.from_numpy(gamma).to(mov_q.dtype))))
+    E0 = float(warp_energies(ref_q, mov_q, gamma[None])[0])
     c0, _ = matching(sc)
     best = (lm * E0 + c0, pairs, E0, gamma, sc)  # the same node cost, recomputed here
     for _ in range(LANDMARK_ROUNDS):
@@ -432,7 +432,7 @@ def _refit_to_children(ref_q: Tensor, mov_q: Tensor, gamma: np.ndarray, s_mov: n
         if phi is None:
             break
         cands = np.stack([np.interp((1 - a) * grid + a * phi, grid, gam_now) for a in LANDMARK_STEPS])
-        E = srvf_sq_norm(ref_q - warp_srvf(mov_q.expand(len(cands), -1, -1), torch.from_numpy(cands).to(mov_q.dtype)))
+        E = warp_energies(ref_q, mov_q, cands)
         improved = False
         for g, e in zip(cands, E.tolist()):
             s_new = np.interp(s_mov, g, grid)
