@@ -248,11 +248,12 @@ def _assignment(cost: np.ndarray, null_mov: np.ndarray, null_ref: np.ndarray) ->
     k1, k2 = cost.shape
     C = np.full((k1 + k2, k2 + k1), np.inf)
     C[:k1, :k2] = cost
-    C[np.arange(k1), k2 + np.arange(k1)] = null_mov
-    C[k1 + np.arange(k2), np.arange(k2)] = null_ref
+    np.fill_diagonal(C[:k1, k2:], null_mov)  # (a view: written through)
+    np.fill_diagonal(C[k1:, :k2], null_ref)
     C[k1:, k2:] = 0.0
     rows, cols = linear_sum_assignment(C)
-    return float(C[rows, cols].sum()), [(int(i), int(j)) for i, j in zip(rows, cols) if i < k1 and j < k2]
+    real = (rows < k1) & (cols < k2)
+    return float(C[rows, cols].sum()), list(zip(rows[real].tolist(), cols[real].tolist()))
 
 
 def _order_groups(s: np.ndarray, tol: float) -> list[list[int]]:
