@@ -430,3 +430,28 @@ def test_a_run_of_trees_is_sliced_like_a_list() -> None:
         got = trees[index]
         want = Trees.cat([trees[[i]] for i in listed])
         assert_same_trees(got, want, atol=0)
+
+
+def test_compiled_depth_first_order_matches_the_torch_one() -> None:
+    """The compiled pre-order of kept slots equals the torch one, siblings ordered by arc with ties (equal arcs:
+    higher slot first) and dropped subtrees."""
+    from torch4dtree.trees import aligned, decode_numba
+
+    if not aligned.HAVE_NUMBA:
+        pytest.skip("numba is not installed")
+    gen = torch.Generator().manual_seed(5)
+    S, n = 40, 12
+    slot_parent = torch.tensor([-1] + [int(torch.randint(0, k, (1,), generator=gen)) for k in range(1, S)])
+    depth = aligned._slot_depth(slot_parent)
+    depth_slots = [(depth == k).nonzero()[:, 0] for k in range(1, int(depth.max()) + 1)]
+    depth_parents = [slot_parent[x] for x in depth_slots]
+    keep = torch.rand(n, S, generator=gen) < 0.7
+    keep[:, 0] = True
+    for slots, parents in zip(depth_slots, depth_parents):
+        keep[:, slots] &= keep[:, parents]
+    arc = torch.randint(0, 4, (n, S), generator=gen).to(torch.float64) / 4  # many equal arcs
+    want = aligned._depth_first_order(keep, arc, slot_parent, depth_slots, depth_parents)
+    got = decode_numba.depth_first_order(keep, arc, slot_parent)
+    for g, w in zip(got, want):
+        assert torch.equal(g, w)
+    assert int(keep.sum()) < n * S and int((arc[:, 1:, None] == arc[:, None, 1:]).sum()) > n * S

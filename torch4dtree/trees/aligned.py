@@ -21,7 +21,7 @@ import torch
 from torch import Tensor
 
 from ..curves.srvf import srvf, srvf_sq_norm
-from .decode_numba import HAVE_NUMBA, integrate_rows, place_branches
+from .decode_numba import HAVE_NUMBA, depth_first_order, integrate_rows, place_branches
 from .structures import Trees
 
 __all__ = ["AlignedTrees", "Lambdas", "SlotRows", "rows_to_trees", "segment_lengths", "slot_weights",
@@ -327,8 +327,11 @@ def rows_to_trees(srvfs: SlotRows, flat: Tensor, s: Tensor, root: Tensor, slot_p
     arc_table = torch.zeros(n * S, dtype=seg.dtype, device=dev)
     arc_table[kept] = torch.where(slot > 0, _arc_fractions(seg, row_of[parent_flat], sc_all[kept]), 0)
     # packed depth-first order; from here on everything is in that order
-    order, local_parent, counts = _depth_first_order(keep, arc_table.detach().reshape(n, S), slot_parent,
-                                                     depth_slots, depth_parents)
+    if compiled:
+        order, local_parent, counts = depth_first_order(keep, arc_table.detach().reshape(n, S), slot_parent)
+    else:
+        order, local_parent, counts = _depth_first_order(keep, arc_table.detach().reshape(n, S), slot_parent,
+                                                         depth_slots, depth_parents)
     slot, tree = order % S, order // S
     packed_index = torch.full((n * S,), -1, dtype=torch.long, device=dev)
     packed_index[order] = torch.arange(len(order), device=dev)

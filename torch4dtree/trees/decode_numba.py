@@ -39,7 +39,7 @@ except ImportError:  # pragma: no cover - exercised only without numba
     numba = None
     HAVE_NUMBA = False
 
-__all__ = ["HAVE_NUMBA", "integrate_rows", "place_branches", "warm_up"]
+__all__ = ["HAVE_NUMBA", "depth_first_order", "integrate_rows", "place_branches", "warm_up"]
 
 
 if HAVE_NUMBA:
@@ -121,6 +121,48 @@ if HAVE_NUMBA:
                     pts[i, j, e] = raw[r, lo, e] + fr * (raw[r, lo + 1, e] - raw[r, lo, e])
 
     @numba.njit(cache=True, boundscheck=False)
+    def _nb_depth_first(keep: np.ndarray, arc: np.ndarray, slot_parent: np.ndarray, order: np.ndarray,
+                        parent: np.ndarray) -> None:
+        """Packed pre-order of every tree's kept slots (``keep (n, S)``), siblings by increasing ``arc (n, S)``,
+        ties to the higher slot: ``order (N,)`` flat ``tree * S + slot``, ``parent (N,)`` the parent's position
+        within its tree (``-1`` for the main branch). ``slot_parent (S,)`` lists parents before children."""
+        n, S = keep.shape
+        by_slot_desc = np.arange(S - 1, 0, -1)
+        pos = np.empty(S, dtype=np.int64)
+        first = np.empty(S + 1, dtype=np.int64)
+        child = np.empty(max(S - 1, 1), dtype=np.int64)
+        stack = np.empty(S, dtype=np.int64)
+        k = 0
+        for t in range(n):
+            # siblings in order: slots high to low, stably sorted by arc, then grouped by parent (counting sort)
+            sibs = by_slot_desc[np.argsort(arc[t, by_slot_desc], kind="mergesort")]
+            first[:] = 0
+            for c in sibs:
+                if keep[t, c]:
+                    first[slot_parent[c] + 1] += 1
+            for j in range(S):
+                first[j + 1] += first[j]
+            fill = first[:S].copy()
+            for c in sibs:
+                if keep[t, c]:
+                    child[fill[slot_parent[c]]] = c
+                    fill[slot_parent[c]] += 1
+            # pre-order walk from the main branch: push children last-first so the first is taken next
+            top = 0
+            stack[0] = 0
+            base = k
+            while top >= 0:
+                v = stack[top]
+                top -= 1
+                pos[v] = k - base
+                order[k] = t * S + v
+                parent[k] = -1 if v == 0 else pos[slot_parent[v]]
+                k += 1
+                for h in range(first[v + 1] - 1, first[v] - 1, -1):
+                    top += 1
+                    stack[top] = child[h]
+
+    @numba.njit(cache=True, boundscheck=False)
     def _nb_starts(gp: np.ndarray, offset: np.ndarray, start: np.ndarray) -> None:
         """In packed order (parents first): a side branch ``i`` starts at its parent's start plus ``offset[i]``
         (``start (K, d)`` is overwritten; a main branch, ``gp[i] == i``, keeps its own)."""
@@ -143,6 +185,18 @@ if HAVE_NUMBA:
                 fr = x - lo
                 for e in range(d):
                     pts[i, 0, e] = pts[p, lo, e] + fr * (pts[p, lo + 1, e] - pts[p, lo, e])
+
+
+def depth_first_order(keep: Tensor, arc: Tensor, slot_parent: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """:func:`~torch4dtree.trees.aligned._depth_first_order` on the CPU (the same outputs): ``order (N,)``,
+    ``parent (N,)``, ``counts (n,)``."""
+    counts = keep.sum(1)
+    N = int(counts.sum())
+    order = torch.empty(N, dtype=torch.long)
+    parent = torch.empty(N, dtype=torch.long)
+    _nb_depth_first(keep.contiguous().numpy(), arc.detach().to(torch.float64).contiguous().numpy(),
+                    slot_parent.contiguous().numpy(), order.numpy(), parent.numpy())
+    return order, parent, counts
 
 
 def _arrays(rows: SlotRows) -> list[np.ndarray]:
@@ -193,3 +247,5 @@ def warm_up() -> None:
         seg, raw = integrate_rows(rows, 2, 3)
         place_branches(raw, seg, torch.arange(2), torch.zeros(2, dtype=torch.long), s, s,
                        torch.zeros(2, 3, dtype=torch.float64))
+        depth_first_order(torch.ones(1, 2, dtype=torch.bool), torch.zeros(1, 2, dtype=torch.float64),
+                          torch.tensor([-1, 0]))
