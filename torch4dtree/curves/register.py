@@ -67,13 +67,14 @@ class CurveRegistration(NamedTuple):
 
 
 def warp_energies(q1: Tensor, q2: Tensor, gammas: np.ndarray) -> np.ndarray:
-    """``||q1 - warp_srvf(q2, g)||^2`` for every warp ``g`` of ``gammas (n, M+1)`` of one pair ``q1, q2 (M, d)``,
-    without gradients: ``(n,)``. The numba kernel on CPU float64 (small torch ops cost ~0.1 ms each, and the tree
-    registration asks this of every parent pair several times); the torch ops otherwise."""
+    """:func:`~torch4dtree.curves.warps.warp_energy` of one pair ``q1, q2 (M, d)`` under every warp ``g`` of
+    ``gammas (n, M+1)``, without gradients: ``(n,)``. The numba kernel on CPU float64 (small torch ops cost ~0.1 ms
+    each, and the tree registration asks this of every parent pair several times); ``warp_energy`` otherwise."""
     if HAVE_NUMBA and q1.device.type == "cpu" and q1.dtype == torch.float64 and q2.dtype == torch.float64:
         return warp_energies_numba(q1.detach().numpy(), q2.detach().numpy(), gammas)
     g = torch.as_tensor(gammas, dtype=q2.dtype, device=q2.device)
-    return srvf_sq_distance(q1.detach(), warp_srvf(q2.detach().expand(len(g), -1, -1), g)).cpu().numpy()
+    n = len(g)
+    return warp_energy(q1.detach().expand(n, -1, -1), q2.detach().expand(n, -1, -1), g).cpu().numpy()
 
 
 def _resample_srvf(q: Tensor, M: int) -> Tensor:
