@@ -117,6 +117,8 @@ def test_pooled_counts_and_pairs():
     assert p["pairs"] == 3 and p["matched"] == 6 and p["common"] == 5
     assert p["precision"] == pytest.approx(5 / 6) and p["recall"] == pytest.approx(4 / 5)
     assert math.isnan(truth.pooled([])["precision"])
-    assert truth.plant_pairs(6) == [(0, 1), (2, 3), (4, 5)]
-    assert truth.plant_pairs(3) == [(0, 1), (2, 0)]
+    assert truth.plant_pairs(3) == [(0, 1), (0, 2), (1, 2)]
+    assert len(truth.plant_pairs(6)) == 15 and len(set(truth.plant_pairs(8))) == 28
+    assert truth.plant_pairs(10) == [(0, 1), (2, 3), (4, 5), (6, 7), (8, 9)]
+    assert truth.plant_pairs(11)[-1] == (10, 0)
     assert truth.plant_pairs(1) == [] and truth.plant_pairs(5, quick=True) == [(0, 1)]

@@ -38,7 +38,10 @@ def _plant(name: str, extra: str, size: float, bend: float) -> TreeSequence:
 def fitted() -> tuple[Population, list[TreeSequence]]:
     seqs = [_plant("a", "X", 1.0, 0.0), _plant("b", "X", 1.05, 0.5), _plant("c", "Y", 0.97, -0.4),
             _plant("d", "Y", 1.02, 0.3)]
-    return Population().fit(seqs), seqs
+    # children placed by their fraction of the stem: X sits between L1 and L2 in half of the plants, which shifts
+    # L2's node rank by one between the groups; with the default node ranks at lp 12 that mismatch costs more than
+    # a second Y slot (6 slots), a property of ranks, not of the union this file tests
+    return Population(positions="warped").fit(seqs), seqs
 
 
 def test_same_extra_branch_of_two_plants_shares_one_slot(fitted):
@@ -65,7 +68,7 @@ def test_new_plant_lands_in_an_opened_slot(fitted):
 
 def test_union_does_not_depend_on_input_order(fitted):
     pop, seqs = fitted
-    rev = Population().fit(seqs[::-1])
+    rev = Population(positions="warped").fit(seqs[::-1])
     assert rev.report_["reference"] == pop.report_["reference"] and rev.report_["slots"] == pop.report_["slots"]
     assert torch.allclose(rev.ref_points, pop.ref_points)
     assert torch.allclose(rev.trajectories.flip(0), pop.trajectories, atol=1e-8)

@@ -143,8 +143,8 @@ def test_fourd_warps_undo_a_reparameterisation_of_every_frame():
 def test_spatial_stage_lowers_real_pairs_where_the_first_registration_does_not():
     """Pheno4D maize (.mat, T = 64). maize01 / maize03: the registration's warps, fitted to each branch's latest
     shape, misfit the younger frames; its correspondence is kept, with identity or 4D-distance warps.
-    maize02 / maize03 with the space's own lp in the cross registration (cross_lp=None): neither registered
-    candidate of rotation="none" beats index order; the index order with the 4D-distance warps lowers it, and the
+    maize02 / maize03 with the space's own lp, warped positions and any order in the cross registration (the
+    setting of the paper's method): neither registered candidate of rotation="none" beats index order; the index order with the 4D-distance warps lowers it, and the
     fallback vertical rotation search lowers it further. Sequences chained by node rank (maize01 / maize02): the
     index order is the best correspondence and only the 4D-distance warps lower it."""
     from torch4dtree.io import LoadOptions, read_sequence
@@ -156,10 +156,11 @@ def test_spatial_stage_lowers_real_pairs_where_the_first_registration_does_not()
     r = register4d(seqs[1], seqs[3])
     assert r.spatial_candidate.startswith("correspondence")
     assert r.distance_after_spatial < r.distance_before - 1e-3
-    plain = register4d(seqs[2], seqs[3], fallback_rotation=None, cross_lp=None)
+    paper = {"cross_lp": None, "positions": "warped", "cross_order_tol": None}
+    plain = register4d(seqs[2], seqs[3], fallback_rotation=None, **paper)
     assert plain.spatial_candidate == "index_order_4d" and not plain.kept_index_order
     assert plain.distance_after_spatial < plain.distance_before - 1e-3
-    r = register4d(seqs[2], seqs[3], cross_lp=None)
+    r = register4d(seqs[2], seqs[3], **paper)
     assert "_vertical" in r.spatial_candidate
     assert r.distance_after_spatial < plain.distance_after_spatial - 1e-3
     assert r.distance_after_temporal <= r.distance_after_spatial

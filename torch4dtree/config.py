@@ -17,12 +17,13 @@ ROTATIONS = ("none", "vertical", "so3")
 LOAD_SETTINGS = ("T", "max_layers", "min_branch_length", "repair", "hierarchy", "joint_hierarchy")
 # = trees.skeleton.HIERARCHIES (literal for the same reason as DEFAULT_T; tested)
 HIERARCHIES = ("straightest", "heaviest", "longest")
-# = trees.registration.POSITIONS / DEFAULT_POSITIONS and temporal.spatiotemporal.CROSS_POSITIONS / CROSS_LP
-# (literal, tested)
+# = trees.registration.POSITIONS / DEFAULT_POSITIONS and temporal.spatiotemporal.CROSS_POSITIONS / CROSS_LP /
+# CROSS_ORDER_TOL (literal, tested)
 POSITIONS = ("warped", "arclength", "rank")
 DEFAULT_POSITIONS = "rank"
-CROSS_POSITIONS = "warped"
-CROSS_LP: float | None = 10.0
+CROSS_POSITIONS = "rank"
+CROSS_LP: float | None = 12.0
+CROSS_ORDER_TOL: float | None = 0.02
 # = trees.structures.DEFAULT_T (kept literal so that importing this module never imports torch; tested)
 DEFAULT_T = 64
 
@@ -51,10 +52,12 @@ class Config:
     # how two trees' children are compared in pair registrations (torch4dtree register); the Karcher mean and the
     # tree space register with "warped" (their layout's metric), cross-sequence registrations with cross_positions
     positions: str = DEFAULT_POSITIONS
-    # cross-sequence registrations (register4d, the model's population): children's positions and relative lp
-    # (null: lambdas[2]); within a sequence, register_sequence keeps its own (temporal.spatiotemporal.CROSS_*)
+    # cross-sequence registrations (register4d, the model's population): children's positions, relative lp
+    # (null: lambdas[2]) and order tolerance (null: children matched in any order); within a sequence,
+    # register_sequence keeps its own (temporal.spatiotemporal.CROSS_*)
     cross_positions: str = CROSS_POSITIONS
     cross_lp: float | None = CROSS_LP
+    cross_order_tol: float | None = CROSS_ORDER_TOL
     # the generative model (SPEC §5; torch4dtree.model.FourDTreeModel)
     n_t: int = 32  # common time samples of the trajectories
     tree_components: int | None = None  # tree-PCA components (None: the share tree_variance)
@@ -81,11 +84,12 @@ class Config:
             raise _error(f"positions must be one of {POSITIONS}, got {self.positions!r}")
         if self.cross_positions not in POSITIONS:
             raise _error(f"cross_positions must be one of {POSITIONS}, got {self.cross_positions!r}")
-        if self.cross_lp is not None:
-            if isinstance(self.cross_lp, bool) or not isinstance(self.cross_lp, (int, float)) or \
-                    not 0 <= self.cross_lp < float("inf"):
-                raise _error(f"cross_lp must be null or a finite number >= 0, got {self.cross_lp!r}")
-            self.cross_lp = float(self.cross_lp)
+        for name in ("cross_lp", "cross_order_tol"):
+            value = getattr(self, name)
+            if value is not None:
+                if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value < float("inf"):
+                    raise _error(f"{name} must be null or a finite number >= 0, got {value!r}")
+                setattr(self, name, float(value))
         if self.neighbourhood < 1:
             raise _error(f"neighbourhood must be at least 1, got {self.neighbourhood}")
         self._check_model_settings()
@@ -109,7 +113,7 @@ class Config:
                 "tree_components": self.tree_components, "tree_variance": self.tree_variance,
                 "medoid_candidates": self.medoid_candidates, "registration": {"neighbourhood": self.neighbourhood},
                 "modes": self.modes, "mode_variance": self.mode_variance, "c": self.c, "mean_iters": self.mean_iters,
-                "positions": self.cross_positions, "cross_lp": self.cross_lp}
+                "positions": self.cross_positions, "cross_lp": self.cross_lp, "cross_order_tol": self.cross_order_tol}
 
     def load_options(self):  # noqa: ANN201 - io.LoadOptions (io imports structures; keep this module light)
         """The :class:`~torch4dtree.io.LoadOptions` with every setting the two share taken from here."""
@@ -119,7 +123,7 @@ class Config:
 
     def cross_args(self) -> dict:
         """The cross-sequence registration settings as :func:`~torch4dtree.temporal.register4d` takes them."""
-        return {"positions": self.cross_positions, "cross_lp": self.cross_lp}
+        return {"positions": self.cross_positions, "cross_lp": self.cross_lp, "cross_order_tol": self.cross_order_tol}
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)

@@ -13,13 +13,13 @@ import argparse
 import shutil
 from pathlib import Path
 
-from ..config import CROSS_LP, CROSS_POSITIONS, POSITIONS
+from ..config import CROSS_LP, CROSS_ORDER_TOL, CROSS_POSITIONS, POSITIONS
 from .options import UsageError, int_at_least
 
 SECTION_NAMES = ("spatial", "temporal", "generative", "truth", "robustness")
 
 
-def _lp_or_none(text: str) -> float | None:
+def _number_or_none(text: str) -> float | None:
     if text.lower() == "none":
         return None
     try:
@@ -48,9 +48,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="common time samples of the trajectories (default: %(default)s)")
     p.add_argument("--cross-positions", choices=POSITIONS, default=CROSS_POSITIONS,
                    help="children's positions in the cross-sequence registrations (default: %(default)s)")
-    p.add_argument("--cross-lp", type=_lp_or_none, default=CROSS_LP, metavar="LP",
+    p.add_argument("--cross-lp", type=_number_or_none, default=CROSS_LP, metavar="LP",
                    help="relative lp of the cross-sequence registrations; 'none': the evaluation's lambdas "
                         "(default: %(default)s)")
+    p.add_argument("--cross-order-tol", type=_number_or_none, default=CROSS_ORDER_TOL, metavar="TOL",
+                   help="cross-sequence registrations match a node's children in their order along the parent, "
+                        "siblings within TOL of each other (a fraction of the parent) in any order; 'none': any "
+                        "order (default: %(default)s)")
     p.add_argument("--seed", type=int, default=0, help="seed of every random choice (default: %(default)s)")
     p.add_argument("--no-figures", action="store_true", help="skip the rendered figures")
     p.add_argument("--overwrite", action="store_true", help="replace an earlier report in --out")
@@ -83,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
         _prepare_out(out, args.overwrite)
     settings = EvalSettings(T=args.T, T_cycle=args.T_cycle, n_t=args.n_t, quick=args.quick, seed=args.seed,
                             figures=not args.no_figures and out is not None, cross_positions=args.cross_positions,
-                            cross_lp=args.cross_lp)
+                            cross_lp=args.cross_lp, cross_order_tol=args.cross_order_tol)
     report = evaluate(data, out, settings, sections, progress=not args.quiet)
     if args.json:
         print(dumps(report))

@@ -21,7 +21,7 @@ import torch
 
 from ..io import LoadOptions, read_sequence, sequence_folders
 from ..io.dataset import DatasetError
-from ..temporal.spatiotemporal import CROSS_LP, CROSS_POSITIONS
+from ..temporal.spatiotemporal import CROSS_LP, CROSS_ORDER_TOL, CROSS_POSITIONS
 from ..trees.structures import TreeSequence
 
 __all__ = ["EvalData", "EvalSettings", "Plant4D", "load_eval_data", "primary_source", "sources_of"]
@@ -40,8 +40,9 @@ class EvalSettings:
     consistency table (the paper's trees are dense); ``n_t``: common time samples of trajectories; ``lambdas``:
     ``(lm, ls, lp)`` with ``lp`` relative to the plant's size; ``rotation``: of cross-plant registrations;
     ``quick``: small versions of every experiment (tests, a first look); ``seed``: every random choice;
-    ``cross_positions`` / ``cross_lp``: the cross-sequence registrations' settings (:func:`register4d`'s
-    ``positions`` / ``cross_lp``, also the truth section's cross-plant registrations).
+    ``cross_positions`` / ``cross_lp`` / ``cross_order_tol``: the cross-sequence registrations' settings
+    (:func:`register4d`'s ``positions`` / ``cross_lp`` / ``cross_order_tol``, also the truth section's cross-plant
+    registrations).
     """
 
     T: int = 64
@@ -54,10 +55,11 @@ class EvalSettings:
     figures: bool = True
     cross_positions: str = CROSS_POSITIONS
     cross_lp: float | None = CROSS_LP
+    cross_order_tol: float | None = CROSS_ORDER_TOL
 
     def cross_args(self) -> dict:
         """The cross-sequence registration settings as :func:`~torch4dtree.temporal.register4d` takes them."""
-        return {"positions": self.cross_positions, "cross_lp": self.cross_lp}
+        return {"positions": self.cross_positions, "cross_lp": self.cross_lp, "cross_order_tol": self.cross_order_tol}
 
     def generator(self, offset: int = 0) -> torch.Generator:
         """A fresh generator seeded from :attr:`seed` (``offset`` keeps experiments' streams apart)."""

@@ -58,7 +58,7 @@ def registered_pairs(data: EvalData, kind: str, settings: EvalSettings, progress
     out = []
     for ref, mov in tqdm(pairs, desc=f"4D pairs ({kind})", unit="pair", disable=not progress):
         key = (ref, mov, settings.n_t, tuple(settings.lambdas), settings.rotation, settings.cross_positions,
-               settings.cross_lp)
+               settings.cross_lp, settings.cross_order_tol)
         if key not in cache:
             cache[key] = register4d(aligned_sequence(data, ref), aligned_sequence(data, mov), settings.lambdas,
                                     settings.rotation, settings.n_t, **settings.cross_args())

@@ -23,7 +23,7 @@ from torch import Tensor, nn
 from ..space.pca import principal_axes, variance_components
 from ..temporal.population import Population
 from ..temporal.registration import time_warp_trajectory
-from ..temporal.spatiotemporal import CROSS_LP, CROSS_POSITIONS
+from ..temporal.spatiotemporal import CROSS_LP, CROSS_ORDER_TOL, CROSS_POSITIONS
 from ..trees.registration import register_to_reference
 from ..trees.structures import Trees, TreeSequence
 from .sampler import TruncatedNormalSampler
@@ -102,8 +102,8 @@ class FourDTreeModel(nn.Module):
 
     Args:
         lambdas, rotation, n_t, tree_components, tree_variance, medoid_candidates, registration, positions,
-            cross_lp: the tree space (:class:`~torch4dtree.temporal.population.Population`; ``positions`` and
-            ``cross_lp`` are its cross-sequence registrations' settings).
+            cross_lp, cross_order_tol: the tree space (:class:`~torch4dtree.temporal.population.Population`;
+            ``positions``, ``cross_lp`` and ``cross_order_tol`` are its cross-sequence registrations' settings).
         modes, mode_variance: the trajectory PCA (a fixed number of modes or the variance share kept).
         c: the sampler's truncation bound.
         mean_iters, temporal: the 4D Karcher mean's rounds and the temporal DP settings.
@@ -113,15 +113,17 @@ class FourDTreeModel(nn.Module):
                  tree_components: int | None = None, tree_variance: float = 0.99, medoid_candidates: int = 3,
                  registration: dict[str, Any] | None = None, modes: int | None = None, mode_variance: float = 0.95,
                  c: float = 3.0, mean_iters: int = 10, temporal: dict[str, Any] | None = None,
-                 positions: str = CROSS_POSITIONS, cross_lp: float | None = CROSS_LP) -> None:
+                 positions: str = CROSS_POSITIONS, cross_lp: float | None = CROSS_LP,
+                 cross_order_tol: float | None = CROSS_ORDER_TOL) -> None:
         super().__init__()
         self.args = {"lambdas": [float(x) for x in lambdas], "rotation": rotation, "n_t": n_t,
                      "tree_components": tree_components, "tree_variance": tree_variance,
                      "medoid_candidates": medoid_candidates, "registration": dict(registration or {}),
                      "modes": modes, "mode_variance": mode_variance, "c": float(c), "mean_iters": mean_iters,
-                     "temporal": dict(temporal or {}), "positions": positions, "cross_lp": cross_lp}
+                     "temporal": dict(temporal or {}), "positions": positions, "cross_lp": cross_lp,
+                     "cross_order_tol": cross_order_tol}
         self.population = Population(lambdas, rotation, n_t, tree_components, tree_variance, medoid_candidates,
-                                     registration, positions, cross_lp)
+                                     registration, positions, cross_lp, cross_order_tol)
         self.mean = TrajectoryMean(mean_iters, registration=temporal)
         self.pca = TrajectoryPCA(modes, mode_variance)
         self.sampler = TruncatedNormalSampler(1, c)
@@ -155,8 +157,10 @@ class FourDTreeModel(nn.Module):
         # the gain is one scalar (checkpoints before the per-component gain) or (k,): a shape, taken from the state
         self.forecast_gain = torch.zeros_like(state_dict["forecast_gain"], dtype=torch.float64)
         out = super().load_state_dict(state_dict, strict, assign)
-        # the population's saved settings win (a state saved before they existed was fitted with warped positions)
-        self.args.update(positions=self.population.positions, cross_lp=self.population.cross_lp)
+        # the population's saved settings win (a state saved before they existed was fitted with warped positions,
+        # the space's lp, children in any order)
+        self.args.update(positions=self.population.positions, cross_lp=self.population.cross_lp,
+                         cross_order_tol=self.population.cross_order_tol)
         return out
 
     @property

@@ -18,9 +18,10 @@
    (:func:`grow_union`). So a branch the reference lacks opens one slot that later plants can share (issue 13:
    matching every plant onto the reference alone opened a slot per plant for it; 6 synthetic tomato plants,
    ``synthetic_dataset("tomato", plants=6, seed=0, n_frames=8, T=32)``: 212 -> 164 slots, Pheno4D tomato ``.mat``
-   at T = 64: 227 -> 178). These registrations use the cross-sequence settings ``positions`` / ``cross_lp``
-   (default warped, lp 10 relative: :data:`~torch4dtree.temporal.spatiotemporal.CROSS_LP`); the layout keeps the
-   space's metric. Until a slot is opened, the batched registrations onto the reference are reused; the
+   at T = 64: 227 -> 178). These registrations use the cross-sequence settings ``positions`` / ``cross_lp`` /
+   ``cross_order_tol`` (default node rank, lp 12 relative, organs kept in their order along the parent:
+   :data:`~torch4dtree.temporal.spatiotemporal.CROSS_POSITIONS`); the layout keeps the space's metric. Until a
+   slot is opened, the batched registrations onto the reference are reused; the
    later ones are one call per plant (cross-sequence time there 6.4 -> 9.6 s, Pheno4D 14 -> 20 s);
 4. a :class:`TreePCA` on all frames, and each 4D tree's **trajectory** ``(n_t, k)`` on the normalised time grid
    ``linspace(0, 1, n_t)`` between its first and last frame (its ``time_spans`` give data units back).
@@ -47,6 +48,7 @@ from ..trees.registration import RELATIVE_LP_SCALE, _check_lambdas, register_to_
 from ..trees.structures import Trees, TreeSequence
 from .spatiotemporal import (
     CROSS_LP,
+    CROSS_ORDER_TOL,
     CROSS_POSITIONS,
     check_cross_settings,
     combine_many,
@@ -92,10 +94,11 @@ class Population(FittedModule):
         medoid_candidates: how many representatives compete for the reference (each costs one batched
             registration of all ``N``).
         registration: keyword arguments of the tree registrations (``neighbourhood``, ``n_starts``...).
-        positions, cross_lp: the cross-sequence registrations' (medoid, union, :meth:`transform`) positions
-            (``"warped"``, ``"arclength"`` or ``"rank"``) and relative ``lp`` (``None``: ``lambdas[2]``; the space's
-            metric keeps ``lambdas``), as in :func:`~torch4dtree.temporal.register4d`. Within a sequence,
-            :func:`register_sequence` keeps its own.
+        positions, cross_lp, cross_order_tol: the cross-sequence registrations' (medoid, union, :meth:`transform`)
+            positions (``"warped"``, ``"arclength"`` or ``"rank"``), relative ``lp`` (``None``: ``lambdas[2]``; the
+            space's metric keeps ``lambdas``) and ``order_tol`` (``None``: children matched in any order), as in
+            :func:`~torch4dtree.temporal.register4d`. Within a sequence, :func:`register_sequence` keeps its own
+            (an ``order_tol`` in ``registration`` reaches only those).
 
     Fitted buffers: ``ref_points (S, T, d)``, ``ref_parent (S,)``, ``ref_s (S,)`` (the union representative,
     module doc step 3: one branch per layout slot, in slot order), ``trajectories (N, n_t, k)``,
@@ -109,9 +112,9 @@ class Population(FittedModule):
     def __init__(self, lambdas: Sequence[float] = (1.0, 1.0, 1.0), rotation: str = "none", n_t: int = 32,
                  n_components: int | None = None, variance: float = 0.99, medoid_candidates: int = 3,
                  registration: dict[str, Any] | None = None, positions: str = CROSS_POSITIONS,
-                 cross_lp: float | None = CROSS_LP) -> None:
+                 cross_lp: float | None = CROSS_LP, cross_order_tol: float | None = CROSS_ORDER_TOL) -> None:
         super().__init__()
-        check_cross_settings(positions, cross_lp)
+        check_cross_settings(positions, cross_lp, cross_order_tol)
         if rotation not in ROTATIONS:
             raise ValueError(f"rotation must be one of {ROTATIONS}, got {rotation!r}")
         if not isinstance(n_t, int) or n_t < 2:
@@ -122,6 +125,7 @@ class Population(FittedModule):
         self.rotation, self.n_t, self.medoid_candidates = rotation, n_t, int(medoid_candidates)
         self.registration = dict(registration or {})
         self.positions, self.cross_lp = positions, None if cross_lp is None else float(cross_lp)
+        self.cross_order_tol = None if cross_order_tol is None else float(cross_order_tol)
         self.lambdas_ = self.cross_lambdas_ = self.lambdas
         self.names_: list[str] = []
         self.report_: dict[str, Any] = {}
@@ -138,7 +142,8 @@ class Population(FittedModule):
         return {"version": 1, "lambdas": list(self.lambdas), "rotation": self.rotation, "n_t": self.n_t,
                 "medoid_candidates": self.medoid_candidates, "registration": dict(self.registration),
                 "lambdas_": list(self.lambdas_), "names": list(self.names_), "report": self.report_,
-                "positions": self.positions, "cross_lp": self.cross_lp, "cross_lambdas_": list(self.cross_lambdas_)}
+                "positions": self.positions, "cross_lp": self.cross_lp, "cross_order_tol": self.cross_order_tol,
+                "cross_lambdas_": list(self.cross_lambdas_)}
 
     def set_extra_state(self, state: dict[str, Any]) -> None:
         if not isinstance(state, dict) or state.get("version") != 1:
@@ -146,15 +151,20 @@ class Population(FittedModule):
         self.lambdas, self.rotation, self.n_t = _check_lambdas(state["lambdas"]), state["rotation"], state["n_t"]
         self.medoid_candidates, self.registration = state["medoid_candidates"], dict(state["registration"])
         self.lambdas_ = _check_lambdas(state["lambdas_"])
-        # states saved before the setting existed were fitted with warped positions and the space's lp
+        # states saved before a setting existed were fitted with warped positions, the space's lp, any order
         self.positions, self.cross_lp = state.get("positions", "warped"), state.get("cross_lp")
-        check_cross_settings(self.positions, self.cross_lp)
+        self.cross_order_tol = state.get("cross_order_tol")
+        check_cross_settings(self.positions, self.cross_lp, self.cross_order_tol)
         self.cross_lambdas_ = _check_lambdas(state.get("cross_lambdas_", state["lambdas_"]))
         self.names_, self.report_ = list(state["names"]), dict(state["report"])
 
     @property
     def is_fitted(self) -> bool:
         return self.trajectories.shape[0] > 0
+
+    def _cross_kwargs(self) -> dict[str, Any]:
+        """Keyword arguments of the cross-sequence registrations (the shared ones, then the cross settings)."""
+        return {**self.registration, "positions": self.positions, "order_tol": self.cross_order_tol}
 
     @property
     def k(self) -> int:
@@ -231,7 +241,8 @@ class Population(FittedModule):
             # each plant's registration the layout used: onto the union representative as it was at its turn
             "cross_distance_before": [float(r.distance_before) for r in regs],
             "cross_distance_after": [float(r.distance) for r in regs], "seconds": seconds,
-            "cross_registration": {"positions": self.positions, "lambdas": list(self.cross_lambdas_)},
+            "cross_registration": {"positions": self.positions, "lambdas": list(self.cross_lambdas_),
+                                   "order_tol": self.cross_order_tol},
         }
         self._set_fitted(ref_points=union.points, ref_parent=union.parent, ref_s=union.s, trajectories=trajs,
                          time_spans=spans)
@@ -252,7 +263,7 @@ class Population(FittedModule):
         for c in tqdm(cands, disable=not progress, desc="choosing the reference", unit="candidate"):
             # one way, as every use of a layout's registrations below (symmetric=False: no inverted solutions)
             regs = register_to_reference(batch, reps[c], lam, self.rotation, lp_relative=False, symmetric=False,
-                                         positions=self.positions, **self.registration)
+                                         **self._cross_kwargs())
             energy = sum(float(r.distance) ** 2 for r in regs)
             if best is None or (energy, names[c]) < best[:2]:
                 best = (energy, names[c], c, regs)
@@ -277,7 +288,7 @@ class Population(FittedModule):
         for i in tqdm(movs, disable=not progress, desc="union layout", unit="plant"):
             if union.points.shape[0] > reps[ref].points.shape[0]:
                 regs[i] = register_to_reference(reps[i], union, lam, self.rotation, lp_relative=False,
-                                                symmetric=False, positions=self.positions, **self.registration)[0]
+                                                symmetric=False, **self._cross_kwargs())[0]
             gamma, rot = regs[i].gamma.to(torch.float64), regs[i].rotation.to(torch.float64)
             targets = open_slots(aseqs[i], regs[i].matches, slot_parent, slot_depth)
             union = grow_union(union, aseqs[i], targets, slot_parent, gamma, rot)
@@ -307,7 +318,7 @@ class Population(FittedModule):
         rep = representative_tree(aligned)
         ref = self.reference_tree()
         reg = register_to_reference(rep, ref, self.cross_lambdas_, self.rotation, lp_relative=False, symmetric=False,
-                                    positions=self.positions, **self.registration)[0]
+                                    **self._cross_kwargs())[0]
         S_r = ref.points.shape[0]
         matched = dict(reg.matches)
         S_m = aligned.num_slots
@@ -346,7 +357,8 @@ class Population(FittedModule):
 def fit_population(sequences: Sequence[TreeSequence], lambdas: Sequence[float] = (1.0, 1.0, 1.0),
                    rotation: str = "none", n_t: int = 32, variance: float = 0.99, n_components: int | None = None,
                    progress: bool = False, medoid_candidates: int = 3, positions: str = CROSS_POSITIONS,
-                   cross_lp: float | None = CROSS_LP, **registration: Any) -> Population:
+                   cross_lp: float | None = CROSS_LP, cross_order_tol: float | None = CROSS_ORDER_TOL,
+                   **registration: Any) -> Population:
     """``N`` 4D trees in one tree space (module doc): ``Population(...).fit(sequences)``."""
     return Population(lambdas, rotation, n_t, n_components, variance, medoid_candidates,
-                      registration, positions, cross_lp).fit(sequences, progress)
+                      registration, positions, cross_lp, cross_order_tol).fit(sequences, progress)

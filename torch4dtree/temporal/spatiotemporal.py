@@ -50,14 +50,14 @@ from ..curves.srvf import interpolate_curve, inverse_srvf, srvf, warp_srvf
 from ..curves.warps import compose_warps
 from ..space.pca import TreePCA
 from ..trees.aligned import AlignedTrees
-from ..trees.registration import POSITIONS, effective_lambdas, index_order_matches, register_trees
+from ..trees.registration import ORDER_TOL, POSITIONS, effective_lambdas, index_order_matches, register_trees
 from ..trees.structures import Trees, TreeSequence
 from .registration import TIME_WEIGHT, TemporalRegistration, geodesic4d, register_trajectories, trajectory_distance
 from .trajectory import fine_size, resample_trajectory, trajectory_srvf
 from .within import AlignedSequence, _inverse_at, register_sequence
 
-__all__ = ["CROSS_LP", "CROSS_POSITIONS", "SpatiotemporalRegistration", "check_cross_settings", "combine_many",
-           "combine_sequences", "fourd_warps", "grow_union", "open_slots",
+__all__ = ["CROSS_LP", "CROSS_ORDER_TOL", "CROSS_POSITIONS", "SpatiotemporalRegistration", "check_cross_settings",
+           "combine_many", "combine_sequences", "fourd_warps", "grow_union", "open_slots",
            "place_sequence", "register4d", "representative_tree"]
 
 DEFAULT_NT = 32
@@ -65,25 +65,34 @@ DEFAULT_NT = 32
 # cost of rotation="none" on tomato, paid only there)
 FALLBACK_ROTATION = "vertical"
 # The cross-sequence registrations' settings (register4d's spatial stage, Population): how a matched child's place
-# on its parent is compared (trees.registration.register_to_reference's ``positions``) and their relative lp
-# (None: the space's lambdas[2]; only the registration uses it, the 4D distance keeps the space's metric).
-# Measured (benchmarks/README, "Cross-sequence registrations"; `evaluate --sections truth` on synthetic sets of 6
-# plants x 10 frames, seeds 0 / 1 / 2, and Pheno4D Table 1): warped lp 10 raises register4d's slot identities
-# (bean 46 -> 96 %, 73/84 -> 81/93 %, 86 -> 90 %; tomato 92/90 -> 98/96 % and 82/87 -> 93/98 % on seeds 1 / 2;
-# maize 95 -> 100 % on seed 2; nothing lower) and lowers bean's growth-clock error (0.073 -> 0.041 on seed 0)
-# while every Pheno4D 4D pair is still lowered (16 / 16); lp 20 or more (either positions) lowers fewer Pheno4D
-# pairs (the registration then minimises another metric than the 4D distance: 10-14 / 16), and arc-length
-# positions at lp <= 10 gain nothing on bean (46 -> 49 % at lp 10) and cost tomato recall.
-CROSS_POSITIONS = "warped"
-CROSS_LP: float | None = 10.0
+# on its parent is compared (trees.registration.register_to_reference's ``positions``), their relative lp (None: the
+# space's lambdas[2]; only the registration uses it, the 4D distance keeps the space's metric) and ``order_tol``
+# (None: a node's children matched in any order; a number: in their order along the parent, siblings closer than
+# that excepted). Plants of a kind carry their organs in one order up the stem (leaf k below leaf k + 1), so the
+# default keeps that order and compares children by node rank, the setting that identified organs best across
+# synthetic plants of the same calendar day (benchmarks/README, "Cross-plant correspondence").
+# Measured on every pair (15) of the 9 synthetic sets of 6 plants x 10 frames (`synth --seed 0/1/2`, not used to
+# choose the setting), register4d's kept slots the same organ (precision) warped lp 10 -> rank lp 12 ordered: bean
+# 0.61 / 0.81 / 0.80 -> 0.91 / 0.94 / 0.93, tomato 0.93 / 0.89 / 0.90 -> 1.00 / 0.90 / 0.97, maize 1.00 / 0.89 /
+# 0.99 -> 1.00 / 1.00 / 1.00; growth-clock error (mean of the 135 pairs) 0.036 -> 0.031, the organ-truth oracle's
+# 0.031. The stage still lowers every Pheno4D 4D pair (37 / 37, mostly through the 4D warps), by less: a
+# correspondence that keeps the organs' order is a constrained optimum of the 4D distance (after / before, .mat
+# tomato 0.960 -> 0.980, maize 0.927 -> 0.965). Warped lp 10 (before, chosen on 3 pairs a set) matched bean leaves
+# across the stem (leaf 3 to leaf 6) on 5 of 15 pairs of one set.
+CROSS_POSITIONS = "rank"
+CROSS_LP: float | None = 12.0
+CROSS_ORDER_TOL: float | None = ORDER_TOL
 
 
-def check_cross_settings(positions: str, cross_lp: float | None) -> None:
-    """Raise ``ValueError`` for an unknown ``positions`` or a ``cross_lp`` that is not ``None`` or ``>= 0``."""
+def check_cross_settings(positions: str, cross_lp: float | None, order_tol: float | None = None) -> None:
+    """Raise ``ValueError`` for an unknown ``positions`` or a ``cross_lp`` / ``order_tol`` that is not ``None`` or
+    a finite number ``>= 0``."""
     if positions not in POSITIONS:
         raise ValueError(f"unknown positions {positions!r}; expected one of {POSITIONS}")
-    if cross_lp is not None and not (isinstance(cross_lp, (int, float)) and 0 <= cross_lp < float("inf")):
-        raise ValueError(f"cross_lp must be None or a finite number >= 0, got {cross_lp!r}")
+    for name, value in (("cross_lp", cross_lp), ("cross_order_tol", order_tol)):
+        if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))
+                                  or not 0 <= value < float("inf")):
+            raise ValueError(f"{name} must be None or a finite number >= 0, got {value!r}")
 
 
 def representative_tree(seq: AlignedSequence) -> Trees:
@@ -255,8 +264,8 @@ class SpatiotemporalRegistration(NamedTuple):
     * ``spatial_candidate``: which candidate of the spatial stage was kept (module doc): ``"registered"``,
       ``"correspondence"``, ``"index_order"`` or, from the fallback search, ``"registered_vertical"`` /
       ``"correspondence_vertical"``; with the 4D-distance warps, the same name and ``"_4d"``.
-    * ``cross_registration``: the cross-sequence registration's settings, ``{"positions", "lambdas"}`` (the
-      effective weights it used).
+    * ``cross_registration``: the cross-sequence registration's settings, ``{"positions", "lambdas", "order_tol"}``
+      (the effective weights it used).
     """
 
     distance_before: float
@@ -394,8 +403,8 @@ def register4d(reference: TreeSequence | AlignedSequence, moving: TreeSequence |
                lambdas: Sequence[float] = (1.0, 1.0, 1.0), rotation: str = "none", n_t: int = DEFAULT_NT,
                n_components: int | None = None, progress: bool = False,
                fallback_rotation: str | None = FALLBACK_ROTATION, positions: str = CROSS_POSITIONS,
-               cross_lp: float | None = CROSS_LP, time_weight: float = TIME_WEIGHT,
-               **registration_kwargs: object) -> SpatiotemporalRegistration:
+               cross_lp: float | None = CROSS_LP, cross_order_tol: float | None = CROSS_ORDER_TOL,
+               time_weight: float = TIME_WEIGHT, **registration_kwargs: object) -> SpatiotemporalRegistration:
     """Register the 4D tree ``moving`` (``B``) onto ``reference`` (``A``) in space and time (module doc).
 
     Args:
@@ -413,22 +422,25 @@ def register4d(reference: TreeSequence | AlignedSequence, moving: TreeSequence |
             join (module doc); ``None`` turns it off.
         positions: how the cross-sequence registration compares matched children's places (``"warped"``,
             ``"arclength"`` or ``"rank"``, :func:`~torch4dtree.trees.register_to_reference`); default
-            :data:`CROSS_POSITIONS` (``"rank"`` with lp 3 or 12 identifies synthetic organs better but leaves
-            Pheno4D 4D pairs unlowered, benchmarks/README.md).
-            The within-sequence registrations keep their own.
+            :data:`CROSS_POSITIONS`. The within-sequence registrations keep their own.
         cross_lp: the cross-sequence registration's relative ``lp`` (``None``: ``lambdas[2]``); the 4D distance
             keeps ``lambdas``. Default :data:`CROSS_LP`.
+        cross_order_tol: the cross-sequence registration's ``order_tol`` (:func:`~torch4dtree.trees.register_trees`:
+            a node's children matched in their order along the parent, siblings within ``cross_order_tol`` of each
+            other in any order); ``None``: any order (SPEC §3). Default :data:`CROSS_ORDER_TOL` (module constants).
         time_weight: the temporal registration's penalty on warping (:func:`register_trajectories`); default
             :data:`~torch4dtree.temporal.registration.TIME_WEIGHT` (two plants are not time warps of each other: their
             recovered growth clocks are closer to the true ones with it); ``0``: the warp minimising the 4D distance.
-        registration_kwargs: passed to the tree registrations (DP settings, ``up``...).
+        registration_kwargs: passed to the tree registrations (DP settings, ``up``...); an ``order_tol`` among them
+            reaches only the within-sequence ones (the cross-sequence one takes ``cross_order_tol``).
 
     Returns:
         :class:`SpatiotemporalRegistration`.
     """
     if n_t < 2:
         raise ValueError(f"n_t must be at least 2, got {n_t}")
-    check_cross_settings(positions, cross_lp)
+    check_cross_settings(positions, cross_lp, cross_order_tol)
+    cross_kwargs = {**registration_kwargs, "order_tol": cross_order_tol}
     seconds: dict[str, float] = {}
     t0 = time.perf_counter()
     # one metric for the whole 4D space: lp relative to the reference's last frame (or its representative)
@@ -490,7 +502,7 @@ def register4d(reference: TreeSequence | AlignedSequence, moving: TreeSequence |
             break  # the fallback search only runs where the first did not beat index order
         # one way (symmetric=False), as the weights are A's: B's representative onto A's
         reg = register_trees(rep_b, rep_a, lam_reg, rot, lp_relative=False, symmetric=False, positions=positions,
-                             **registration_kwargs)
+                             **cross_kwargs)
         R = reg.rotation.to(torch.float64)
         suffix = "" if k == 0 else f"_{rot}"
         candidates += [score(f"registered{suffix}", reg.matches, reg.gamma.to(torch.float64), R),
@@ -520,5 +532,5 @@ def register4d(reference: TreeSequence | AlignedSequence, moving: TreeSequence |
         d_before, d_spatial, float(temporal.distance), temporal.warp, times, alpha_a, alpha_b_grid,
         temporal.registered, pca, after, (A, B), matches, temporal, span, seconds,
         spatial_candidate == "index_order", spatial_candidate, alpha_b,
-        {"positions": positions, "lambdas": tuple(lam_reg)})
+        {"positions": positions, "lambdas": tuple(lam_reg), "order_tol": cross_order_tol})
 
