@@ -144,9 +144,10 @@ def test_spatial_stage_lowers_real_pairs_where_the_first_registration_does_not()
     """Pheno4D maize (.mat, T = 64). maize01 / maize03: the registration's warps, fitted to each branch's latest
     shape, misfit the younger frames; its correspondence is kept, with identity or 4D-distance warps.
     maize02 / maize03 with the space's own lp, warped positions and any order in the cross registration (the
-    setting of the paper's method): neither registered candidate of rotation="none" beats index order; the index order with the 4D-distance warps lowers it, and the
-    fallback vertical rotation search lowers it further. Sequences chained by node rank (maize01 / maize02): the
-    index order is the best correspondence and only the 4D-distance warps lower it."""
+    setting of the paper's method): neither registered candidate of rotation="none" beats index order; the index
+    order with the 4D-distance warps lowers it, and the fallback vertical rotation search lowers it further.
+    Sequences chained by node rank (maize01 / maize02): the index order is the best correspondence and only the
+    4D-distance warps lower it."""
     from torch4dtree.io import LoadOptions, read_sequence
     from torch4dtree.temporal import register_sequence
 

@@ -254,26 +254,34 @@ def test_time_warped_frames_registered_exactly():
 
 
 def test_growth_clock_of_two_different_plants():
-    """Two synthetic bean plants (not time warps of each other: other organ onsets, sizes, side shoots) on known
-    clocks: register4d recovers the true relative clock to 0.028 (identity 0.064). The plain SRVF energy's optimum
-    jumps to fit the plants' differences (0.058), and the true warp's plain energy is above it: the time coordinate
-    (TIME_WEIGHT), not a better optimiser, brings the warp back."""
+    """Pairs of synthetic bean plants (not time warps of each other: other organ onsets, sizes, side shoots) on known
+    clocks: register4d recovers the true relative clock to 0.028 on average over 6 pairs (no warp: 0.083). The
+    plain SRVF energy's optimum bends the warp to fit the plants' differences (0.036), and on every pair the true
+    warp's plain energy is above that optimum: the time coordinate (TIME_WEIGHT), not a better optimiser, brings the
+    warp back (over all 135 pairs of the 9 evaluation sets: 0.031 against 0.036, benchmarks/README.md)."""
     from torch4dtree.data import plant_seed, relative_warp
     from torch4dtree.data.synthetic import default_times
     from torch4dtree.temporal import register4d
 
     times = default_times(np.random.default_rng([0, 99]), 8)  # as synthetic_dataset("bean", seed=0, n_frames=8)
-    a, b = (synthetic_plant("bean", plant_seed(0, i), times=times, T=16, dtype=torch.float64) for i in (2, 3))
-    reg = register4d(a.sequence, b.sequence, rotation="vertical")
-    true = relative_warp(a, b, reg.times.double())
-    plain = register_trajectories(reg.alpha_ref, reg.alpha_mov_fine, time_weight=0)
-    err, err_plain = float((reg.warp - true).abs().mean()), float((plain.warp - true).abs().mean())
-    assert float((reg.times - true).abs().mean()) > 0.06  # a clock to recover
-    assert err < 0.035 and err < 0.6 * err_plain, (err, err_plain)
-    at_truth = register_trajectories(reg.alpha_ref, time_warp_trajectory(reg.alpha_mov_fine, true), refine=0,
-                                     time_weight=0).distance_before
-    assert float(at_truth) > float(plain.distance)
-    assert reg.distance_after_temporal <= reg.distance_after_spatial
+    plants = [synthetic_plant("bean", plant_seed(0, i), times=times, T=16, dtype=torch.float64) for i in range(6)]
+    errors, plain_errors, no_warp = [], [], []
+    for i, k in ((0, 1), (2, 3), (4, 5), (0, 2), (1, 3), (2, 4)):
+        a, b = plants[i], plants[k]
+        reg = register4d(a.sequence, b.sequence, rotation="vertical")
+        true = relative_warp(a, b, reg.times.double())
+        plain = register_trajectories(reg.alpha_ref, reg.alpha_mov_fine, time_weight=0)
+        errors.append(float((reg.warp - true).abs().mean()))
+        plain_errors.append(float((plain.warp - true).abs().mean()))
+        no_warp.append(float((reg.times - true).abs().mean()))
+        at_truth = register_trajectories(reg.alpha_ref, time_warp_trajectory(reg.alpha_mov_fine, true), refine=0,
+                                         time_weight=0).distance_before
+        assert float(at_truth) > float(plain.distance), (i, k)
+        assert reg.distance_after_temporal <= reg.distance_after_spatial
+    err, err_plain, err_none = (sum(v) / len(v) for v in (errors, plain_errors, no_warp))
+    assert err_none > 0.06  # clocks to recover
+    assert err < 0.035 and max(errors) < 0.045, errors
+    assert err < 0.85 * err_plain and err < 0.4 * err_none, (err, err_plain, err_none)
 
 
 def test_bad_trajectory_inputs():
