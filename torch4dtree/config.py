@@ -113,7 +113,7 @@ class Config:
                 "tree_components": self.tree_components, "tree_variance": self.tree_variance,
                 "medoid_candidates": self.medoid_candidates, "registration": {"neighbourhood": self.neighbourhood},
                 "modes": self.modes, "mode_variance": self.mode_variance, "c": self.c, "mean_iters": self.mean_iters,
-                "positions": self.cross_positions, "cross_lp": self.cross_lp, "cross_order_tol": self.cross_order_tol}
+                **self.cross_args()}
 
     def load_options(self):  # noqa: ANN201 - io.LoadOptions (io imports structures; keep this module light)
         """The :class:`~torch4dtree.io.LoadOptions` with every setting the two share taken from here."""

@@ -21,8 +21,8 @@
    at T = 64: 227 -> 178). These registrations use the cross-sequence settings ``positions`` / ``cross_lp`` /
    ``cross_order_tol`` (default node rank, lp 12 relative, organs kept in their order along the parent:
    :data:`~torch4dtree.temporal.spatiotemporal.CROSS_POSITIONS`); the layout keeps the space's metric. Until a
-   slot is opened, the batched registrations onto the reference are reused; the
-   later ones are one call per plant (cross-sequence time there 6.4 -> 9.6 s, Pheno4D 14 -> 20 s);
+   slot is opened, the batched registrations onto the reference are reused; the later ones are one call per plant
+   (cross-sequence time there 6.4 -> 9.6 s, Pheno4D 14 -> 20 s);
 4. a :class:`TreePCA` on all frames, and each 4D tree's **trajectory** ``(n_t, k)`` on the normalised time grid
    ``linspace(0, 1, n_t)`` between its first and last frame (its ``time_spans`` give data units back).
 

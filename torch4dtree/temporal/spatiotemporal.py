@@ -70,7 +70,7 @@ FALLBACK_ROTATION = "vertical"
 # (None: a node's children matched in any order; a number: in their order along the parent, siblings closer than
 # that excepted). Plants of a kind carry their organs in one order up the stem (leaf k below leaf k + 1), so the
 # default keeps that order and compares children by node rank, the setting that identified organs best across
-# synthetic plants of the same calendar day (benchmarks/README, "Cross-plant correspondence").
+# synthetic plants of the same calendar day (benchmarks/README, "Bean across plants").
 # Measured on every pair (15) of the 9 synthetic sets of 6 plants x 10 frames (`synth --seed 0/1/2`, not used to
 # choose the setting), register4d's kept slots the same organ (precision) warped lp 10 -> rank lp 12 ordered: bean
 # 0.61 / 0.81 / 0.80 -> 0.91 / 0.94 / 0.93, tomato 0.93 / 0.89 / 0.90 -> 1.00 / 0.90 / 0.97, maize 1.00 / 0.89 /
