@@ -63,8 +63,8 @@ def test_readme_commands_use_only_existing_subcommands():
 def test_readme_quick_start_runs_on_synthetic_data(tmp_path, monkeypatch, capsys):
     """The quick start's shell commands, then its Python, exactly as written, in an empty folder."""
     (tmp_path / "configs").symlink_to(ROOT / "configs")
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]),
-           "TORCH4DTREE_PHENO4D": str(tmp_path / "no_real_data_here")}
+    path = [str(ROOT), *filter(None, os.environ.get("PYTHONPATH", "").split(os.pathsep))]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(path), "TORCH4DTREE_PHENO4D": str(tmp_path / "no_real_data")}
     lines = [line for block in fenced(quick_start(), "bash") for line in block.splitlines() if line.strip()]
     assert lines and all(line.startswith("torch4dtree ") for line in lines), lines
     for line in lines:
