@@ -24,6 +24,11 @@ def sample_growth_warp(rng: np.random.Generator, grid_size: int = 101, strength:
     ``h`` is the normalised integral of a positive density ``exp(a (x - 1/2) + c sin(2 pi x + e))``:
     ``a > 0`` develops late, ``a < 0`` early. Returns ``(grid (G,), h (G,))``; between grid points
     ``h`` is linear (that piecewise-linear function IS the ground truth, see :func:`evaluate_warp`).
+
+    Example:
+        >>> grid, h = sample_growth_warp(np.random.default_rng(0), grid_size=5)
+        >>> grid.tolist(), float(h[0]), float(h[-1]), bool((np.diff(h) > 0).all())
+        ([0.0, 0.25, 0.5, 0.75, 1.0], 0.0, 1.0, True)
     """
     a = rng.uniform(-1.4, 1.4) * strength
     c = rng.uniform(-0.35, 0.35) * strength
@@ -38,7 +43,12 @@ def sample_growth_warp(rng: np.random.Generator, grid_size: int = 101, strength:
 
 
 def evaluate_warp(grid: Tensor | np.ndarray, values: Tensor | np.ndarray, x: Tensor | np.ndarray | float) -> Tensor:
-    """Evaluate a warp given on a grid (piecewise linear) at ``x`` (any shape) -> same shape, float64."""
+    """Evaluate a warp given on a grid (piecewise linear) at ``x`` (any shape) -> same shape, float64.
+
+    Example:
+        >>> evaluate_warp(np.array([0.0, 0.5, 1.0]), np.array([0.0, 0.2, 1.0]), np.array([0.25, 1.0])).tolist()
+        [0.1, 1.0]
+    """
     g = np.asarray(torch.as_tensor(grid).double().cpu())
     v = np.asarray(torch.as_tensor(values).double().cpu())
     xs = np.asarray(torch.as_tensor(x).double().cpu())
@@ -46,6 +56,11 @@ def evaluate_warp(grid: Tensor | np.ndarray, values: Tensor | np.ndarray, x: Ten
 
 
 def default_times(rng: np.random.Generator, n_frames: int) -> np.ndarray:
-    """Irregular acquisition days (gaps of 1 to 3 days, mostly 2, as in Pheno4D), starting at day 0."""
+    """``(n_frames,)`` irregular acquisition days (gaps of 1 to 3 days, mostly 2, as in Pheno4D), from day 0.
+
+    Example:
+        >>> default_times(np.random.default_rng(0), 4).tolist()
+        [0.0, 3.0, 5.0, 7.0]
+    """
     gaps = rng.choice([1.0, 2.0, 2.0, 2.0, 3.0], size=max(n_frames - 1, 0))
     return np.concatenate([[0.0], np.cumsum(gaps)])

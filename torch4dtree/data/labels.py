@@ -41,6 +41,10 @@ def label_parts(label: int) -> tuple[int, ...]:
 
     E.g. ``305 -> (3, 5)`` (leaflet 5 of leaf 3), ``5302 -> (53, 2)`` (leaf 2 of the shoot from
     the axil of leaf 3), ``99 -> (99,)`` (a spur).
+
+    Example:
+        >>> label_parts(0), label_parts(305), label_parts(5302)
+        ((), (3, 5), (53, 2))
     """
     if label < 0:
         raise ValueError(f"labels are non-negative, got {label}")
@@ -57,12 +61,21 @@ def label_layer(label: int) -> int:
 
     It is the organ's depth in the plant's true organ hierarchy, not the depth of a branch in a
     tree derived from the skeleton (the hierarchy rule may put a leaf on the main branch).
+
+    Example:
+        >>> [label_layer(x) for x in (0, 3, 305, 30501, SPUR_LABEL)]
+        [0, 1, 2, 3, -1]
     """
     return -1 if label == SPUR_LABEL else len(label_parts(label))
 
 
 def label_organ(label: int) -> str:
-    """What a label names: ``"stem"``, ``"leaf"``, ``"leaflet"``, ``"lobe"``, ``"shoot"`` or ``"spur"``."""
+    """What a label names: ``"stem"``, ``"leaf"``, ``"leaflet"``, ``"lobe"``, ``"shoot"`` or ``"spur"``.
+
+    Example:
+        >>> [label_organ(x) for x in (0, 3, 305, 30501, 53, 5302, 99)]
+        ['stem', 'leaf', 'leaflet', 'lobe', 'shoot', 'leaf', 'spur']
+    """
     if label == SPUR_LABEL:
         return "spur"
     parts = label_parts(label)
@@ -75,7 +88,12 @@ def label_organ(label: int) -> str:
 
 
 def parent_label(label: int) -> int:
-    """The organ a labelled organ grows on (``label // 100``; the stem for a leaf or shoot on it)."""
+    """The organ a labelled organ grows on (``label // 100``; the stem for a leaf or shoot on it).
+
+    Example:
+        >>> parent_label(305), parent_label(3)
+        (3, 0)
+    """
     if label <= 0 or label == SPUR_LABEL:
         raise ValueError(f"label {label} has no parent organ")
     return label // 100

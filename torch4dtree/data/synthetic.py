@@ -128,6 +128,11 @@ def relative_warp(a: SyntheticPlant, b: SyntheticPlant, t: Tensor | np.ndarray |
 
     Plant ``b`` at normalised time ``xi(t)`` is as developed as plant ``a`` at ``t``, so a temporal
     registration that matches ``b``'s trajectory at ``xi(t)`` to ``a``'s at ``t`` should recover it.
+
+    Example:
+        >>> plant = synthetic_plant("tomato", seed=0, n_frames=2, T=8)
+        >>> relative_warp(plant, plant, torch.tensor([0.0, 0.5, 1.0])).tolist()  # a plant is in step with itself
+        [0.0, 0.5, 1.0]
     """
     return b.warp_inverse(a.warp(t))
 
@@ -187,6 +192,13 @@ def synthetic_plant(
 
     Returns:
         a :class:`SyntheticPlant`. Units are mm, z up, the root at the origin.
+
+    Example:
+        >>> plant = synthetic_plant("tomato", seed=0, n_frames=2, T=8)
+        >>> len(plant.sequence), plant.sequence.frames.T, plant.name
+        (2, 8, 'tomato_seed0')
+        >>> plant.organs_per_frame()[0][:3]  # the stem and the cotyledons
+        [0, 1, 2]
     """
     if kind not in KINDS:
         raise ValueError(f"unknown plant kind {kind!r}; expected one of {', '.join(KINDS)}")
@@ -240,7 +252,12 @@ def synthetic_plant(
 
 
 def plant_seed(seed: int, index: int) -> int:
-    """The seed of plant ``index`` of a dataset drawn with ``seed`` (a 32-bit int)."""
+    """The seed of plant ``index`` of a dataset drawn with ``seed`` (a 32-bit int).
+
+    Example:
+        >>> plant_seed(0, 1)
+        3964924996
+    """
     return int(np.random.SeedSequence([seed, index]).generate_state(1)[0])
 
 
@@ -260,6 +277,11 @@ def synthetic_dataset(
     With ``shared_times`` (default) and no ``times``, all plants are scanned on the same irregular
     days drawn from ``seed`` (as in Pheno4D); otherwise each plant draws its own.
     ``hierarchy_kwargs`` and other keyword arguments go to :func:`synthetic_plant`.
+
+    Example:
+        >>> plants = synthetic_dataset("tomato", plants=2, seed=0, n_frames=2, T=8)
+        >>> [p.name for p in plants], bool((plants[0].times == plants[1].times).all())
+        (['tomato_00', 'tomato_01'], True)
     """
     if plants < 1:
         raise ValueError(f"plants must be at least 1, got {plants}")

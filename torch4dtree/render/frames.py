@@ -324,7 +324,7 @@ def fit_size(rows: Sequence[TreeSequence | Trees], longest: int = 512, share_cam
         >>> stem, leaf = np.array([[0.0, 0, 0], [0, 0, 10]]), np.array([[0.0, 0, 5], [4, 0, 8]])
         >>> trees = Trees.from_branches([[stem, leaf]], [[-1, 0]], T=8)
         >>> fit_size([trees], longest=64)
-        (30, 64)
+        (26, 64)
     """
     opts = resolve_options(options, overrides)
     batches = [_as_batch(r)[0] for r in rows]
