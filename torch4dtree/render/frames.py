@@ -31,16 +31,27 @@ import numpy as np
 from .camera import MIN_EXTENT, all_points, camera_axes, frame_azimuths, prepare_camera, view_elevation
 from .geometry import branch_colors, tree_geometry
 from .gl import close_renderer, draw_frames
-from .options import RenderOptions, resolve_options
+from .options import (
+    COLOR_MODES,
+    GL_PACKAGES,
+    IMAGE_SUFFIXES,
+    LABEL_PALETTE,
+    LAYER_COLORS,
+    UNLABELLED_COLOR,
+    VIDEO_SUFFIXES,
+    RenderOptions,
+    resolve_options,
+)
 from .save import pad_even, save_frames, save_image, save_video
-from .text import compose, draw_caption, label_strip
+from .text import TEXT_INK, compose, draw_caption, label_strip
 
 if TYPE_CHECKING:  # imported where used: importing the renderer must not import torch (fast CLI start)
     from ..trees.structures import Trees, TreeSequence
 
 __all__ = [
-    "RenderOptions", "branch_colors", "close_renderer", "fit_size", "format_time", "render_grid", "render_sequence",
-    "render_trees", "save_frames", "save_image", "save_video", "time_index", "tree_meshes",
+    "COLOR_MODES", "GL_PACKAGES", "IMAGE_SUFFIXES", "LABEL_PALETTE", "LAYER_COLORS", "TEXT_INK", "UNLABELLED_COLOR",
+    "VIDEO_SUFFIXES", "RenderOptions", "branch_colors", "close_renderer", "fit_size", "format_time", "render_grid",
+    "render_sequence", "render_trees", "save_frames", "save_image", "save_video", "time_index", "tree_meshes",
 ]
 
 SAME_TIME = 1e-9  # a video time within this share of the time span after a scan shows that scan (rounding)
