@@ -102,6 +102,18 @@ def _stem_wobble(rng: np.random.Generator, amplitude: float) -> np.ndarray:
     return np.stack([rng.normal(0, amplitude, 3), rng.uniform(50, 250, 3), rng.uniform(0, 2 * math.pi, 3)], 1)
 
 
+def _stem(
+    rng: np.random.Generator, size: tuple[float, float], lean_deg: tuple[float, float], wobble_amp: float,
+) -> tuple[float, np.ndarray, np.ndarray, list[Organ], float]:
+    """A plant's size factor, stem lean and lateral wobble, its organ list holding the stem, and the azimuth
+    of its first organ, drawn in this order (the order fixes the plants a seed gives)."""
+    scale = rng.uniform(*size)
+    lean = _horizontal(rng, math.tan(rng.uniform(*lean_deg) * DEG))
+    wob = np.stack([_stem_wobble(rng, wobble_amp) for _ in range(2)])
+    organs = [Organ(label=STEM_LABEL, parent=-1, role="stem")]
+    return scale, lean, wob, organs, rng.uniform(0, 2 * math.pi)
+
+
 def _add_leaflets(
     rng: np.random.Generator, organs: list[Organ], leaf: int, pairs: Sequence[float], rate: float,
     threshold: float, step: float, lobes: float,
@@ -142,11 +154,8 @@ def _shoot(rng: np.random.Generator, leaf: Organ, delay: float, max_len: float, 
 
 def _tomato_structure(rng: np.random.Generator) -> PlantModel:
     # traits follow identity (module doc)
-    size = rng.uniform(0.85, 1.15)
-    lean = _horizontal(rng, math.tan(rng.uniform(1.0, 8.0) * DEG))
-    wob = np.stack([_stem_wobble(rng, 0.05) for _ in range(2)])
-    organs = [Organ(label=STEM_LABEL, parent=-1, role="stem")]
-    phi0 = rng.uniform(0, 2 * math.pi)  # azimuth of the first true leaf
+    # phi0: azimuth of the first true leaf
+    size, lean, wob, organs, phi0 = _stem(rng, (0.85, 1.15), (1.0, 8.0), 0.05)
     incline = rng.normal(0.0, 3.0)  # plant-level offset of the leaf inclinations (deg)
     phi_c = phi0 - 0.5 * math.pi + rng.normal(0, 8 * DEG)  # cotyledons across the first true leaf
     cot_node = 19.0 + rng.uniform(-1.5, 1.5)
@@ -200,11 +209,7 @@ def _tomato_structure(rng: np.random.Generator) -> PlantModel:
 
 
 def _maize_structure(rng: np.random.Generator) -> PlantModel:
-    size = rng.uniform(0.88, 1.12)
-    lean = _horizontal(rng, math.tan(rng.uniform(0.5, 3.0) * DEG))
-    wob = np.stack([_stem_wobble(rng, 0.02) for _ in range(2)])
-    organs = [Organ(label=STEM_LABEL, parent=-1, role="stem")]
-    phi0 = rng.uniform(0, 2 * math.pi)
+    size, lean, wob, organs, phi0 = _stem(rng, (0.88, 1.12), (0.5, 3.0), 0.02)
     incline = rng.normal(0.0, 3.0)  # plant-level offsets: adjacent leaves of one plant are near copies
     droop = rng.uniform(48, 58)
     whorl = rng.uniform(15.0, 25.0)  # the rolled leaves above the youngest leaf's divergence
@@ -234,11 +239,8 @@ def _maize_structure(rng: np.random.Generator) -> PlantModel:
 
 
 def _bean_structure(rng: np.random.Generator) -> PlantModel:
-    size = rng.uniform(0.88, 1.12)
-    lean = _horizontal(rng, math.tan(rng.uniform(1.0, 6.0) * DEG))
-    wob = np.stack([_stem_wobble(rng, 0.04) for _ in range(2)])
-    organs = [Organ(label=STEM_LABEL, parent=-1, role="stem")]
-    phi0 = rng.uniform(0, 2 * math.pi)  # azimuth of the first primary leaf
+    # phi0: azimuth of the first primary leaf
+    size, lean, wob, organs, phi0 = _stem(rng, (0.88, 1.12), (1.0, 6.0), 0.04)
     incline = rng.normal(0.0, 3.0)
     node1 = 32.0 + rng.uniform(-2, 2)
     leaves = {}
@@ -291,11 +293,7 @@ def _bean_structure(rng: np.random.Generator) -> PlantModel:
 def _almond_structure(rng: np.random.Generator) -> PlantModel:
     # A young almond tree over two flushes, wood only. Apical dominance is weak: scaffolds near the top are the
     # most vigorous and outgrow the leader above them, which in about half of the trees arches away.
-    size = rng.uniform(0.88, 1.12)
-    lean = _horizontal(rng, math.tan(rng.uniform(2.0, 12.0) * DEG))  # trunks lean (wind, no stake)
-    wob = np.stack([_stem_wobble(rng, 0.05) for _ in range(2)])
-    organs = [Organ(label=STEM_LABEL, parent=-1, role="stem")]
-    phi0 = rng.uniform(0, 2 * math.pi)
+    size, lean, wob, organs, phi0 = _stem(rng, (0.88, 1.12), (2.0, 12.0), 0.05)  # trunks lean (wind, no stake)
     n_scaffolds = int(rng.integers(3, 6))
     lo, hi = 70.0, 400.0  # trunk heights (nominal mm) of the scaffolds' buds, one per slot at random within it
     nodes = lo + (hi - lo) * (np.arange(n_scaffolds) + rng.uniform(0.15, 0.85, n_scaffolds)) / n_scaffolds

@@ -190,17 +190,12 @@ def read_sequence(
 
     Example:
         >>> import tempfile
-        >>> from pathlib import Path
-        >>> import numpy as np, torch
-        >>> from torch4dtree import Trees, TreeSequence
-        >>> stem, leaf = np.array([[0.0, 0, 0], [0, 0, 10]]), np.array([[0.0, 0, 5], [4, 0, 8]])
-        >>> frames = Trees.cat([Trees.from_branches([[stem * 0.5]], [[-1]], T=8),
-        ...                     Trees.from_branches([[stem, leaf]], [[-1, 0]], T=8)])
+        >>> from torch4dtree.data import synthetic_plant
         >>> root = Path(tempfile.mkdtemp())
-        >>> files = write_sequence(root / "plant_1", TreeSequence(frames, torch.tensor([0.0, 2.0])))
+        >>> files = write_sequence(root / "plant_1", synthetic_plant("tomato", seed=0, n_frames=2, T=8).sequence)
         >>> loaded = read_sequence(root / "plant_1", LoadOptions(T=8))
-        >>> loaded.files, loaded.sequence.times.tolist()
-        (['frame_000.swc', 'frame_001.swc'], [0.0, 2.0])
+        >>> loaded.files, loaded.sequence.frames.T
+        (['frame_000.swc', 'frame_001.swc'], 8)
     """
     o = options or LoadOptions()
     folder = Path(folder)
@@ -262,14 +257,9 @@ def sequence_folders(folder: str | Path) -> list[Path]:
 
     Example:
         >>> import tempfile
-        >>> from pathlib import Path
-        >>> import numpy as np, torch
-        >>> from torch4dtree import Trees, TreeSequence
-        >>> stem, leaf = np.array([[0.0, 0, 0], [0, 0, 10]]), np.array([[0.0, 0, 5], [4, 0, 8]])
-        >>> frames = Trees.cat([Trees.from_branches([[stem * 0.5]], [[-1]], T=8),
-        ...                     Trees.from_branches([[stem, leaf]], [[-1, 0]], T=8)])
+        >>> from torch4dtree.data import synthetic_plant
         >>> root = Path(tempfile.mkdtemp())
-        >>> files = write_sequence(root / "plant_1", TreeSequence(frames, torch.tensor([0.0, 2.0])))
+        >>> files = write_sequence(root / "plant_1", synthetic_plant("tomato", seed=0, n_frames=2, T=8).sequence)
         >>> [p.name for p in sequence_folders(root)]
         ['plant_1']
     """
@@ -292,14 +282,9 @@ def read_dataset(
 
     Example:
         >>> import tempfile
-        >>> from pathlib import Path
-        >>> import numpy as np, torch
-        >>> from torch4dtree import Trees, TreeSequence
-        >>> stem, leaf = np.array([[0.0, 0, 0], [0, 0, 10]]), np.array([[0.0, 0, 5], [4, 0, 8]])
-        >>> frames = Trees.cat([Trees.from_branches([[stem * 0.5]], [[-1]], T=8),
-        ...                     Trees.from_branches([[stem, leaf]], [[-1, 0]], T=8)])
+        >>> from torch4dtree.data import synthetic_plant
         >>> root = Path(tempfile.mkdtemp())
-        >>> files = write_sequence(root / "plant_1", TreeSequence(frames, torch.tensor([0.0, 2.0])))
+        >>> files = write_sequence(root / "plant_1", synthetic_plant("tomato", seed=0, n_frames=2, T=8).sequence)
         >>> [s.sequence.name for s in read_dataset(root, LoadOptions(T=8))]
         ['plant_1']
     """
@@ -313,14 +298,9 @@ def write_sequence(folder: str | Path, seq: TreeSequence, overwrite: bool = Fals
 
     Example:
         >>> import tempfile
-        >>> from pathlib import Path
-        >>> import numpy as np, torch
-        >>> from torch4dtree import Trees, TreeSequence
-        >>> stem, leaf = np.array([[0.0, 0, 0], [0, 0, 10]]), np.array([[0.0, 0, 5], [4, 0, 8]])
-        >>> frames = Trees.cat([Trees.from_branches([[stem * 0.5]], [[-1]], T=8),
-        ...                     Trees.from_branches([[stem, leaf]], [[-1, 0]], T=8)])
+        >>> from torch4dtree.data import synthetic_plant
         >>> root = Path(tempfile.mkdtemp())
-        >>> files = write_sequence(root / "plant_1", TreeSequence(frames, torch.tensor([0.0, 2.0])))
+        >>> files = write_sequence(root / "plant_1", synthetic_plant("tomato", seed=0, n_frames=2, T=8).sequence)
         >>> [p.name for p in files]
         ['frame_000.swc', 'frame_001.swc', 'times.json']
     """

@@ -162,12 +162,8 @@ def render_sequence(
         ``(n_frames, H, W, 3)`` uint8.
 
     Example:
-        >>> import numpy as np, torch
-        >>> from torch4dtree import Trees, TreeSequence
-        >>> stem, leaf = np.array([[0.0, 0, 0], [0, 0, 10]]), np.array([[0.0, 0, 5], [4, 0, 8]])
-        >>> young = Trees.from_branches([[stem * 0.5]], [[-1]], T=8)
-        >>> seq = TreeSequence(Trees.cat([young, Trees.from_branches([[stem, leaf]], [[-1, 0]], T=8)]),
-        ...                    torch.tensor([0.0, 2.0]))
+        >>> from torch4dtree.data import synthetic_plant
+        >>> seq = synthetic_plant("tomato", seed=0, n_frames=2, T=8).sequence
         >>> render_sequence(seq, n_frames=3, size=(64, 48)).shape
         (3, 48, 64, 3)
     """
@@ -252,12 +248,8 @@ def render_grid(
         ``(H, W, 3)`` uint8 image, or ``(n_frames, H, W, 3)`` uint8 frames.
 
     Example:
-        >>> import numpy as np, torch
-        >>> from torch4dtree import Trees, TreeSequence
-        >>> stem, leaf = np.array([[0.0, 0, 0], [0, 0, 10]]), np.array([[0.0, 0, 5], [4, 0, 8]])
-        >>> young = Trees.from_branches([[stem * 0.5]], [[-1]], T=8)
-        >>> seq = TreeSequence(Trees.cat([young, Trees.from_branches([[stem, leaf]], [[-1, 0]], T=8)]),
-        ...                    torch.tensor([0.0, 2.0]))
+        >>> from torch4dtree.data import synthetic_plant
+        >>> seq = synthetic_plant("tomato", seed=0, n_frames=2, T=8).sequence
         >>> image = render_grid([seq, seq.frames], row_labels=["sequence", "frames"], title="two rows", size=48)
         >>> image.ndim, image.shape[1] >= 2 * 48
         (3, True)
