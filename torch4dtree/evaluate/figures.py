@@ -288,11 +288,11 @@ def line_plot(series: Mapping[str, tuple[Sequence[float], Sequence[float]]], tit
     from PIL import Image, ImageDraw
 
     from ..render import LABEL_PALETTE
-    from ..render.frames import TEXT_INK, _font, _line_height, _text_width
+    from ..render.text import TEXT_INK, line_height, load_font, text_width
 
     W, H = size
-    font, small = _font(max(11, H // 26)), _font(max(10, H // 32))
-    lh = _line_height(font)
+    font, small = load_font(max(11, H // 26)), load_font(max(10, H // 32))
+    lh = line_height(font)
     pts = [(float(x), float(y)) for xs, ys in series.values() for x, y in zip(xs, ys)
            if math.isfinite(float(x)) and math.isfinite(float(y))]
     xs_all, ys_all = [p[0] for p in pts] or [0.0, 1.0], [p[1] for p in pts] or [0.0, 1.0]
@@ -301,7 +301,7 @@ def line_plot(series: Mapping[str, tuple[Sequence[float], Sequence[float]]], tit
     def label(v: float) -> str:
         return f"{v:.4g}"
 
-    left = max(_text_width(label(v), small) for v in yt) + lh + 14
+    left = max(text_width(label(v), small) for v in yt) + lh + 14
     top, bottom, right = (2 * lh if title else lh), 2 * lh + 10, 12
     x0, x1, y0, y1 = left, W - right, top, H - bottom  # the plotting box (y0 at the top)
 
@@ -313,11 +313,11 @@ def line_plot(series: Mapping[str, tuple[Sequence[float], Sequence[float]]], tit
     for v in xt:
         x, _ = px(v, yt[0])
         d.line([(x, y0), (x, y1)], fill=(225, 225, 225))
-        d.text((x - _text_width(label(v), small) / 2, y1 + 4), label(v), fill=TEXT_INK, font=small)
+        d.text((x - text_width(label(v), small) / 2, y1 + 4), label(v), fill=TEXT_INK, font=small)
     for v in yt:
         _, y = px(xt[0], v)
         d.line([(x0, y), (x1, y)], fill=(225, 225, 225))
-        d.text((x0 - 6 - _text_width(label(v), small), y - lh / 2), label(v), fill=TEXT_INK, font=small)
+        d.text((x0 - 6 - text_width(label(v), small), y - lh / 2), label(v), fill=TEXT_INK, font=small)
     d.rectangle([x0, y0, x1, y1], outline=TEXT_INK)
     for k, (xs, ys) in enumerate(series.values()):
         color = tuple(int(c) for c in LABEL_PALETTE[k % len(LABEL_PALETTE)])
@@ -334,16 +334,16 @@ def line_plot(series: Mapping[str, tuple[Sequence[float], Sequence[float]]], tit
     ly = y0 + 6
     for k, name in enumerate(series):  # legend: top right, inside the box
         color = tuple(int(c) for c in LABEL_PALETTE[k % len(LABEL_PALETTE)])
-        tx = x1 - 8 - _text_width(name, small)
+        tx = x1 - 8 - text_width(name, small)
         d.line([(tx - 24, ly + lh / 2), (tx - 6, ly + lh / 2)], fill=color, width=3)
         d.text((tx, ly), name, fill=TEXT_INK, font=small)
         ly += lh
     if title:
-        d.text(((W - _text_width(title, font)) / 2, lh / 3), title, fill=TEXT_INK, font=font)
+        d.text(((W - text_width(title, font)) / 2, lh / 3), title, fill=TEXT_INK, font=font)
     if xlabel:
-        d.text(((x0 + x1 - _text_width(xlabel, font)) / 2, H - lh - 4), xlabel, fill=TEXT_INK, font=font)
+        d.text(((x0 + x1 - text_width(xlabel, font)) / 2, H - lh - 4), xlabel, fill=TEXT_INK, font=font)
     if ylabel:  # rotated text: draw it on its own strip and turn it
-        strip = Image.new("RGB", (_text_width(ylabel, font) + 4, lh + 2), (255, 255, 255))
+        strip = Image.new("RGB", (text_width(ylabel, font) + 4, lh + 2), (255, 255, 255))
         ImageDraw.Draw(strip).text((2, 0), ylabel, fill=TEXT_INK, font=font)
         strip = strip.rotate(90, expand=True)
         img.paste(strip, (2, int((y0 + y1 - strip.height) / 2)))
