@@ -14,7 +14,6 @@ are ``None`` when the reference is not available (fdasrsf not installed, data mi
 
 from __future__ import annotations
 
-import statistics
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -43,6 +42,7 @@ QUICK: dict[str, dict[str, Any]] = {
 def _temporal_one_pair(pairs: int, n_t: int, k: int) -> dict[str, float]:
     """One temporal registration per call (as the paper times it), mean and median over ``pairs`` warped pairs; the
     moving trajectory is passed finer, as ``register4d`` passes it."""
+    from ..evaluate.stats import summary
     from ..temporal.registration import register_trajectories
     from ..temporal.trajectory import OVERSAMPLE
     from .temporal import warped_trajectory_pairs
@@ -54,7 +54,7 @@ def _temporal_one_pair(pairs: int, n_t: int, k: int) -> dict[str, float]:
         t0 = time.perf_counter()
         register_trajectories(ref[i], mov[i])
         times.append(time.perf_counter() - t0)
-    return {"mean": statistics.fmean(times), "median": statistics.median(times), "n": pairs, "n_t": n_t, "k": k}
+    return {**summary(times), "n_t": n_t, "k": k}
 
 
 def _ratio(ours: float | None, reference_s: float | None, reference: str, what: str) -> dict[str, Any]:

@@ -7,7 +7,7 @@
   along the geodesic, columns are times; the top half before registration (index-order correspondence, identity
   time warp), the bottom half after the spatial and temporal registration. Colours are the common slots.
 * ``mean.png``, ``modes.png``, ``samples.png``: a :class:`~torch4dtree.model.FourDTreeModel` fitted on the plants
-  of one kind (:func:`torch4dtree.cli.fit.write_figures`).
+  of one kind (:func:`.model_report.write_model_figures`).
 
 :func:`line_plot` draws curves with Pillow (matplotlib is not a dependency) for sections that report curves.
 A figure that cannot be made (no GL, too few plants) is left out with a note in ``report["figure_notes"]``: the
@@ -30,6 +30,7 @@ import torch
 from torch import Tensor
 
 from .data import EvalData, EvalSettings, Plant4D, primary_source
+from .model_report import FIGURE_COLUMNS, time_columns, write_model_figures
 
 if TYPE_CHECKING:
     from ..temporal import SpatiotemporalRegistration
@@ -55,8 +56,6 @@ class FigureLayout:
 def figure_layout(settings: EvalSettings) -> FigureLayout:
     """The layout for ``settings``: tiny with ``quick``; otherwise a modest ``n_t`` (at most 16) keeps the model
     fit on Pheno4D tomato around a minute."""
-    from ..cli.fit import FIGURE_COLUMNS
-
     if settings.quick:
         return FigureLayout(cell=96, steps=3, columns=FIGURE_COLUMNS, n_t=min(settings.n_t, 8), max_plants=3)
     return FigureLayout(cell=160, steps=5, columns=FIGURE_COLUMNS, n_t=min(settings.n_t, 16), max_plants=None)
@@ -169,7 +168,6 @@ def index_order_registration(res: SpatiotemporalRegistration) -> SpatiotemporalR
 
 
 def _geodesic4d_figure(data: EvalData, settings: EvalSettings, lay: FigureLayout, path: Path) -> Path | None:
-    from ..cli.fit import time_columns
     from ..render import format_time, render_grid, save_image
     from ..temporal import register4d
 
@@ -195,7 +193,6 @@ def _geodesic4d_figure(data: EvalData, settings: EvalSettings, lay: FigureLayout
 
 # ---------------------------------------------------------------------------------------- model
 def _model_figures(data: EvalData, settings: EvalSettings, lay: FigureLayout, out: Path) -> list[str]:
-    from ..cli.fit import write_figures as write_model_figures
     from ..model import FourDTreeModel
 
     kind = _kind_with(data, 2)

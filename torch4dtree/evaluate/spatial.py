@@ -33,6 +33,7 @@ from ..trees.registration import register_trees
 from ..trees.structures import Trees
 from .data import EvalData, EvalSettings, Plant4D, primary_source
 from .pairs import pair_seconds, registered_pairs
+from .paper import SECONDS
 from .stats import fmt, md_table, summary
 
 # the paper's Table 1 (4D plants, mean / median / std before and after its spatial registration)
@@ -43,7 +44,7 @@ PAPER_TABLE1 = {"tomato": {"before": {"mean": 325.0, "median": 347.0, "std": 52.
 # the paper's Table 2 (its method): mean (PAPER_CYCLE_ERRORS), median, std
 _PAPER_MEDIAN_STD = {0.1: (0.0008, 0.0201), 0.05: (0.0015, 0.0362), 0.02: (0.0065, 0.0417), 0.01: (0.0276, 0.0615)}
 PAPER_TABLE2 = {e: (PAPER_CYCLE_ERRORS[e], *ms) for e, ms in _PAPER_MEDIAN_STD.items()}
-PAPER_SECONDS = {"register_3d": 2.3, "register_4d_tomato": 235.0, "register_4d_maize": 17.0}
+PAPER_SECONDS = {k: SECONDS[k] for k in ("register_3d", "register_4d_tomato", "register_4d_maize")}
 QUICK_PAIRS = 3  # consecutive pairs per kind and source with settings.quick
 
 

@@ -218,17 +218,17 @@ def _deterministic() -> Iterator[None]:
 
 def _oracle_warp(a: Plant4D, b: Plant4D, settings: EvalSettings) -> Tensor:
     """The temporal registration of ``b`` onto ``a`` in the ground-truth (organ label) layout."""
-    from ..bench.temporal import _label_features, _pca_trajectories
     from ..temporal.registration import TIME_WEIGHT, register_trajectories
+    from .oracle import label_features, pca_trajectories
 
     seqs = [a.sequence.to(torch.float64), b.sequence.to(torch.float64)]
-    # a label may name several branches of a frame (spurs, organs the rule split): _label_features writes them
+    # a label may name several branches of a frame (spurs, organs the rule split): label_features writes them
     # into one slot by an indexed assignment whose winner varies from run to run on several threads; the
     # deterministic kernels make it the same every time (the oracle differed by up to 0.06 between two calls)
     with _deterministic():
-        feats = _label_features(seqs, seqs[0].frames.T)
+        feats = label_features(seqs, seqs[0].frames.T)
     k = min(ORACLE_COMPONENTS, sum(len(s) for s in seqs) - 1)
-    ta, tb = _pca_trajectories(feats, [s.times for s in seqs], k, settings.n_t)
+    ta, tb = pca_trajectories(feats, [s.times for s in seqs], k, settings.n_t)
     return register_trajectories(ta, tb, time_weight=TIME_WEIGHT).warp  # register4d's temporal step
 
 
