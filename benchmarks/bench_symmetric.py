@@ -20,7 +20,7 @@ import numpy as np
 import torch
 
 from torch4dtree.evaluate.data import EvalSettings, load_eval_data
-from torch4dtree.evaluate.spatial import _frames_at, consecutive_pairs
+from torch4dtree.evaluate.spatial import consecutive_pairs, frames_at
 from torch4dtree.temporal import register4d
 from torch4dtree.trees.correspondence import DEFAULT_EPS, cycle_consistency
 from torch4dtree.trees.registration import register_trees
@@ -33,7 +33,7 @@ def cycle(data_dir: str) -> None:
     for kind in data.kinds:
         frames: dict = {}
         for plant, k in consecutive_pairs(data, kind, settings):
-            fr = frames.setdefault(plant.name, _frames_at(plant, settings.T_cycle))
+            fr = frames.setdefault(plant.name, frames_at(plant, settings.T_cycle))
             a, b = fr[k], fr[k + 1]
             if a is None or b is None:
                 continue

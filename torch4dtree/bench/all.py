@@ -130,7 +130,7 @@ def benchmark_all(root: str | Path | None = None, quick: bool = False,
     """Run every section (module doc) at the :data:`FULL` (or :data:`QUICK`) sizes; ``root`` is the Pheno4D folder
     (``mat/`` and / or ``swc/`` inside; default :func:`.trees.default_data_root`). ``log`` gets a line per section."""
     from ..curves.dp_numba import warm_up
-    from ..evaluate.run import machine
+    from ..evaluate.report import machine
     from .curves import benchmark_curves
     from .fourd import benchmark_4d
     from .model import benchmark_model

@@ -26,6 +26,9 @@ from ..evaluate.stats import summary
 
 __all__ = ["benchmark_curves", "curve_pairs", "pheno4d_paths", "smooth_random_curves"]
 
+MIN_LENGTH = 1e-12  # a path of coincident points keeps a finite scale
+TIE_TOL = 1e-9  # relative: an energy within rounding of the reference's is "not worse"
+
 
 def smooth_random_curves(B: int, T: int, d: int = 3, generator: torch.Generator | None = None,
                          modes: int = 5) -> Tensor:
@@ -81,7 +84,7 @@ def pheno4d_paths(root: str | Path, T: int, per_file: int = 4, min_nodes: int = 
     counts = torch.tensor([len(p) for p in paths])
     beta = resample_polylines(pts, counts, T)
     beta = beta - beta[:, :1]
-    return beta / curve_length(beta).clamp_min(1e-12)[:, None, None]
+    return beta / curve_length(beta).clamp_min(MIN_LENGTH)[:, None, None]
 
 
 def curve_pairs(kind: str, B: int, T: int, generator: torch.Generator,
@@ -199,7 +202,7 @@ def _set_threads(n: int | None) -> int | None:
 def _compare(e_o: Tensor, e_f: Tensor) -> dict[str, float]:
     """Mean energy ratio (mean of ours / mean of theirs) and the share of pairs where ours is not worse."""
     return {"ratio_of_means": float(e_o.mean() / e_f.mean()),
-            "not_worse": float((e_o <= e_f * (1 + 1e-9)).double().mean())}
+            "not_worse": float((e_o <= e_f * (1 + TIE_TOL)).double().mean())}
 
 
 # runs of the batched call per kind and thread setting (median reported), interleaved

@@ -166,7 +166,7 @@ def identity_accuracy(kinds: tuple[str, ...] = ("tomato", "maize", "bean"), seed
     """Identity precision / recall of registrations of realistic synthetic plants against their organ truth.
 
     For every kind, hierarchy rule and relative position weight (``lp_per_length``: the relative ``lp``,
-    9 = within-sequence registration's default; ``None``: ``lp = 1`` in the data's units, the old default):
+    9 = within-sequence registration's default; ``None``: ``lp = 1`` in the data's units):
     consecutive frames of each plant (``seeds`` plants) and, with ``cross_plant``, the same frame of two
     different plants (frames 3, 6, 9; vertical rotation). ``joint_hierarchy``: main branches chosen jointly over
     time (:mod:`torch4dtree.trees.growth`, the default) or by the rule on each frame alone. ``positions``: how

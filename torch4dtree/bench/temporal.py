@@ -1,8 +1,7 @@
 """Benchmarks of the 4D half: temporal registration speed and warp recovery, within-sequence registration
 (identity accuracy on synthetic plants with ground truth, time on Pheno4D), and growth-clock recovery.
 
-Kept beside the code it measures until the lead moves it to ``torch4dtree/bench/temporal.py``. Every
-function returns a JSON-serialisable dict; ``python -m torch4dtree.bench.temporal [section ...]`` prints them.
+Every function returns a JSON-serialisable dict; ``python -m torch4dtree.bench.temporal [section ...]`` prints them.
 """
 
 from __future__ import annotations

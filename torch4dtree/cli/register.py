@@ -30,7 +30,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_config_arguments(parser, registration=True)
     parser.add_argument("--positions", choices=POSITIONS, default=None,
                         help=f"how children's places on their parents are compared (default: {Config.positions}: "
-                             "node rank along the main branch; warped: the SPEC's parameter after the parent's warp, "
+                             "node rank along the main branch; warped: the paper's parameter after the parent's warp, "
                              "the layout's own metric; arclength: arc length from the parent's base)")
 
 

@@ -1,4 +1,5 @@
-"""``torch4dtree evaluate DATA_DIR``: the paper's experiments (SPEC §7) and the generative model's quality, one command.
+"""``torch4dtree evaluate DATA_DIR``: the paper's experiments (docs/method.md §7) and the generative model's
+quality, one command.
 
 Each experiment is one module with the same two functions:
 
@@ -15,6 +16,7 @@ Error rates are fractions (0.0094 for 0.94 %).
 from __future__ import annotations
 
 from .data import EvalData, EvalSettings, Plant4D, load_eval_data, sources_of
+from .report import dumps
 from .run import SECTIONS, evaluate
 
-__all__ = ["SECTIONS", "EvalData", "EvalSettings", "Plant4D", "evaluate", "load_eval_data", "sources_of"]
+__all__ = ["SECTIONS", "EvalData", "EvalSettings", "Plant4D", "dumps", "evaluate", "load_eval_data", "sources_of"]

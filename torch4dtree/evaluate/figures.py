@@ -241,6 +241,7 @@ def write_figures(report: dict, datas: dict[str, EvalData], settings: EvalSettin
     return written
 
 
+TICK_TOL = 1e-9  # a tick count within rounding of a whole number is that number
 ROBUSTNESS_PANELS = (("noise", "node noise (sigma, % of the plant's height)"),
                      ("drop", "side branches dropped (%)"), ("split", "segments split (%)"))
 
@@ -266,8 +267,13 @@ def robustness_figure(report: dict, path: Path) -> Path | None:
 
 
 # ---------------------------------------------------------------------------------- line plots
-def _nice_ticks(lo: float, hi: float, n: int = 5) -> list[float]:
-    """About ``n`` round tick values (1, 2, 5 times a power of ten) covering ``[lo, hi]``."""
+def nice_ticks(lo: float, hi: float, n: int = 5) -> list[float]:
+    """About ``n`` round tick values (1, 2, 5 times a power of ten) covering ``[lo, hi]``.
+
+    Example:
+        >>> nice_ticks(0.0, 0.93), nice_ticks(0.0, 20.0)
+        ([0.0, 0.5, 1.0], [0.0, 5.0, 10.0, 15.0, 20.0])
+    """
     if not hi > lo:  # a constant: centred in a range 10 % of its size (a flat 100 % line sits mid-plot)
         pad = 0.05 * abs(lo) or 1.0
         lo, hi = lo - pad, hi + pad
@@ -275,7 +281,7 @@ def _nice_ticks(lo: float, hi: float, n: int = 5) -> list[float]:
     mag = 10 ** math.floor(math.log10(raw))
     step = next(m * mag for m in (1, 2, 5, 10) if m * mag >= raw)
     first = math.floor(lo / step) * step
-    return [first + i * step for i in range(int(math.ceil((hi - first) / step - 1e-9)) + 1)]
+    return [first + i * step for i in range(int(math.ceil((hi - first) / step - TICK_TOL)) + 1)]
 
 
 def line_plot(series: Mapping[str, tuple[Sequence[float], Sequence[float]]], title: str = "", xlabel: str = "",
@@ -293,7 +299,7 @@ def line_plot(series: Mapping[str, tuple[Sequence[float], Sequence[float]]], tit
     pts = [(float(x), float(y)) for xs, ys in series.values() for x, y in zip(xs, ys)
            if math.isfinite(float(x)) and math.isfinite(float(y))]
     xs_all, ys_all = [p[0] for p in pts] or [0.0, 1.0], [p[1] for p in pts] or [0.0, 1.0]
-    xt, yt = _nice_ticks(min(xs_all), max(xs_all)), _nice_ticks(min(ys_all), max(ys_all))
+    xt, yt = nice_ticks(min(xs_all), max(xs_all)), nice_ticks(min(ys_all), max(ys_all))
 
     def label(v: float) -> str:
         return f"{v:.4g}"

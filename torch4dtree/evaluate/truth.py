@@ -1,4 +1,5 @@
-"""What only synthetic data can measure (SPEC §7): branch correspondences and growth clocks against ground truth.
+"""What only synthetic data can measure (docs/method.md §7): branch correspondences and growth clocks against
+ground truth.
 
 Runs on the ``synthetic`` source only (returns ``{}`` otherwise), per kind:
 
@@ -9,8 +10,7 @@ Runs on the ``synthetic`` source only (returns ``{}`` otherwise), per kind:
   pairs, recall over organs present in both frames; spurs ignored); the chained identities are scored by
   :func:`~torch4dtree.temporal.within.identity_accuracy` (share of all branches of all frames sitting in their
   organ's slot). The identities are scored again with ``register_sequence``'s own default ``lp`` (tuned for
-  identities) when the evaluation's differs (on synthetic maize they differed a lot, 70 vs 91 % of branches in
-  their organ's slot, until the order-preserving matching of ``register_sequence``: 99.7 % at both).
+  identities) when the evaluation's differs.
 * **across plants**: the same normalised time of two plants of the kind (the same frame index when, as in
   ``torch4dtree synth`` sets, plants share their days), at about 1/3, 2/3 and the end of the sequence, one tree
   registered onto the other with a rotation about the vertical (plants grow in any azimuth; ``settings.rotation``
@@ -19,16 +19,16 @@ Runs on the ``synthetic`` source only (returns ``{}`` otherwise), per kind:
   (:func:`~torch4dtree.temporal.register4d` on the within-sequence registrations above); the recovered time warp
   against the true relative clock :func:`~torch4dtree.data.relative_warp` (mean absolute error on the normalised
   grid), beside the identity warp (no registration) and an *oracle* layout that puts organs in slots by their
-  labels (:func:`torch4dtree.bench.temporal.benchmark_growth_clocks`' ``labels`` layout), which isolates the
+  labels (:func:`.oracle.label_features`), which isolates the
   temporal step from the spatial one. ``register4d`` is given the within-sequence registrations above (``lp``
   relative to each pair's reference frame); called on the raw sequences it would scale ``lp`` by the reference
   plant's last frame instead.
 
 Pairs of plants: every pair while there are at most :data:`ALL_PAIRS_UP_TO` plants (15 pairs of 6 plants),
 otherwise disjoint neighbours ``(0, 1), (2, 3), ...`` (an odd last plant pairs with the first), so that the
-cost grows linearly beyond that. Three disjoint pairs of 6 plants hid a set (synthetic bean seed 0) where 5 of the
-15 pairs matched leaves across the stem (slots the same organ: 0.96 on the 3 pairs, 0.61 on all 15). Precision and
-recall are pooled over pairs (counts summed), as :func:`torch4dtree.bench.hierarchy.identity_accuracy` does.
+cost grows linearly beyond that (disjoint pairs alone can miss the pairs whose leaves match across the stem).
+Precision and recall are pooled over pairs (counts summed), as
+:func:`torch4dtree.bench.hierarchy.identity_accuracy` does.
 ``quick``: two plants, one pair, the last frame only.
 """
 
