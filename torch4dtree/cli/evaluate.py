@@ -13,7 +13,7 @@ import argparse
 import shutil
 from pathlib import Path
 
-from ..config import CROSS_LP, CROSS_ORDER_TOL, CROSS_POSITIONS, POSITIONS
+from ..settings import CROSS_LP, CROSS_ORDER_TOL, CROSS_POSITIONS, POSITIONS
 from .options import UsageError, int_at_least
 
 SECTION_NAMES = ("spatial", "temporal", "generative", "truth", "robustness")

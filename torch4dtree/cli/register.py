@@ -7,7 +7,8 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from ..config import POSITIONS, Config
+from ..config import Config
+from ..settings import POSITIONS
 from .options import UsageError, add_config_arguments, check_output_file, config_from_args, int_at_least
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".gif", ".mp4")

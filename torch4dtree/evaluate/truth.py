@@ -218,7 +218,8 @@ def _deterministic() -> Iterator[None]:
 
 def _oracle_warp(a: Plant4D, b: Plant4D, settings: EvalSettings) -> Tensor:
     """The temporal registration of ``b`` onto ``a`` in the ground-truth (organ label) layout."""
-    from ..temporal.registration import TIME_WEIGHT, register_trajectories
+    from ..settings import TIME_WEIGHT
+    from ..temporal.registration import register_trajectories
     from .oracle import label_features, pca_trajectories
 
     seqs = [a.sequence.to(torch.float64), b.sequence.to(torch.float64)]
