@@ -134,13 +134,6 @@ def main_branch_agreement(root: str | Path, rules: tuple[str, ...] = (*HIERARCHI
     return out
 
 
-if __name__ == "__main__":  # pragma: no cover
-    import json
-    import sys
-
-    print(json.dumps(main_branch_agreement(sys.argv[1] if len(sys.argv) > 1 else "../shared/data/pheno4d"), indent=1))
-
-
 def identity_accuracy(kinds: tuple[str, ...] = ("tomato", "maize", "bean"), seeds: tuple[int, ...] = (0, 1, 2),
                       rules: tuple[str, ...] = HIERARCHIES, lp_per_length: tuple[float | None, ...] = (9.0,),
                       n_frames: int = 10, T: int = 32, cross_plant: bool = True,
@@ -204,3 +197,10 @@ def identity_accuracy(kinds: tuple[str, ...] = ("tomato", "maize", "bean"), seed
                 row["seconds"] = time.perf_counter() - t0
                 rows.append(row)
     return rows
+
+
+if __name__ == "__main__":  # pragma: no cover
+    import json
+    import sys
+
+    print(json.dumps(main_branch_agreement(sys.argv[1] if len(sys.argv) > 1 else "../shared/data/pheno4d"), indent=1))

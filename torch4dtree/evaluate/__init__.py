@@ -9,8 +9,12 @@ Each experiment is one module with the same two functions:
   hold ``timings``: ``{stage: {"seconds": ours, "paper_seconds": theirs or None, "what": "..."}}``.
 * ``markdown(result: dict) -> list[str]``: the report's lines for that result.
 
-:func:`evaluate` runs them in order and writes ``report.json`` and ``report.md`` (:mod:`.report`) with the figures.
-Error rates are fractions (0.0094 for 0.94 %).
+:func:`evaluate` (:mod:`.run`) runs them in order and writes ``report.json`` and ``report.md`` (:mod:`.report`)
+with the figures (:mod:`.figures`). Error rates are fractions (0.0094 for 0.94 %).
+
+Shared by every measurement of the package (the benchmarks of :mod:`torch4dtree.bench` too): :mod:`.stats` (the
+summary statistics and table helpers), :mod:`.paper` (the paper's timings), :mod:`.oracle` (the organ-label
+layout), :func:`.report.machine`. :mod:`.model_report` is the report of a fitted model (``torch4dtree fit``).
 """
 
 from __future__ import annotations

@@ -58,7 +58,12 @@ class EvalSettings:
     cross_order_tol: float | None = CROSS_ORDER_TOL
 
     def cross_args(self) -> dict:
-        """The cross-sequence registration settings as :func:`~torch4dtree.temporal.register4d` takes them."""
+        """The cross-sequence registration settings as :func:`~torch4dtree.temporal.register4d` takes them.
+
+        Example:
+            >>> EvalSettings(cross_lp=None).cross_args()
+            {'positions': 'rank', 'cross_lp': None, 'cross_order_tol': 0.02}
+        """
         return {"positions": self.cross_positions, "cross_lp": self.cross_lp, "cross_order_tol": self.cross_order_tol}
 
     def generator(self, offset: int = 0) -> torch.Generator:

@@ -272,7 +272,7 @@ def nice_ticks(lo: float, hi: float, n: int = 5) -> list[float]:
 
     Example:
         >>> nice_ticks(0.0, 0.93), nice_ticks(0.0, 20.0)
-        ([0.0, 0.5, 1.0], [0.0, 5.0, 10.0, 15.0, 20.0])
+        ([0.0, 0.5, 1.0], [0, 5, 10, 15, 20])
     """
     if not hi > lo:  # a constant: centred in a range 10 % of its size (a flat 100 % line sits mid-plot)
         pad = 0.05 * abs(lo) or 1.0
