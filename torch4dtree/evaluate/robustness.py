@@ -60,6 +60,7 @@ import torch
 
 from ..data.synthetic import KINDS
 from ..data.truth import identity_scores
+from ..io.dataset import DatasetError
 from ..trees.structures import Trees
 from .data import SOURCES, EvalData, EvalSettings, Plant4D
 from .stats import fmt, md_table, summary
@@ -116,7 +117,7 @@ def from_skeleton(xyz: np.ndarray, parent: np.ndarray, where: str = "skeleton") 
     for b, path in enumerate(paths):
         label[path if b == 0 else path[1:]] = b
     if (label < 0).any():
-        raise ValueError(f"{where}: {int((label < 0).sum())} nodes lie on no branch")
+        raise DatasetError(f"{where}: {int((label < 0).sum())} nodes lie on no branch")
     return LabelledNodes(xyz, parent, label, tuple(parents), forest=False)
 
 
@@ -240,7 +241,7 @@ def frame_nodes(path: Path) -> list[LabelledNodes]:
 
         struct = load_mat_struct(path)
         if struct is None:
-            raise ValueError(f"{path}: an empty frame")
+            raise DatasetError(f"{path}: an empty frame")
         return [from_polylines(*mat_to_branches(struct, str(path)))]
     from ..io.swc import read_swc_skeleton
 

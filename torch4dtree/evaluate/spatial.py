@@ -29,6 +29,7 @@ import torch
 from tqdm.auto import tqdm
 
 from ..io import LoadOptions, read_tree
+from ..io.dataset import DatasetError
 from ..trees.correspondence import DEFAULT_EPS, PAPER_CYCLE_ERRORS, cycle_consistency
 from ..trees.registration import register_trees
 from ..trees.structures import Trees
@@ -135,7 +136,7 @@ def cycle_table(data: EvalData, kind: str, settings: EvalSettings, T: int, progr
 def run(datas: dict[str, EvalData], settings: EvalSettings, progress: bool = False) -> dict[str, Any]:
     primary = primary_source(datas)
     if primary is None:
-        raise ValueError("no plants to evaluate")
+        raise DatasetError("no plants to evaluate")
     table1: dict[str, Any] = {"trees3d": {}, "plants4d": {}, "source_4d": primary}
     table2: dict[str, Any] = {"eps": list(DEFAULT_EPS), "paper": {str(e): dict(zip(("mean", "median", "std"), v))
                                                                    for e, v in PAPER_TABLE2.items()},

@@ -44,6 +44,7 @@ from torch import Tensor
 
 from ..data.synthetic import evaluate_warp, relative_warp
 from ..data.truth import IdentityScores, identity_scores
+from ..io.dataset import DatasetError
 from .data import EvalData, EvalSettings, Plant4D
 from .stats import fmt, md_table, summary
 
@@ -101,7 +102,7 @@ class _Clock(NamedTuple):
 
 def _clock(plant: Plant4D) -> _Clock:
     if plant.truth is None or "growth_warp" not in plant.truth:
-        raise ValueError(f"{plant.name}: no growth clock in the dataset's ground truth")
+        raise DatasetError(f"{plant.name}: no growth clock in the dataset's ground truth")
     gw = plant.truth["growth_warp"]
     return _Clock(torch.tensor(gw["grid"], dtype=torch.float64), torch.tensor(gw["values"], dtype=torch.float64))
 
