@@ -1,4 +1,4 @@
-"""``torch4dtree benchmark all``: the benchmarks of steps 2-6 in one run, with ratios against the references.
+"""``torch4dtree benchmark all``: every benchmark in one run, with ratios against the references.
 
 Sections (each the dict of its own benchmark): ``curves`` (:func:`.curves.benchmark_curves`: curve registration
 vs fdasrsf, which is only importable in the benchmark venv, ``benchmarks/requirements.txt``), ``trees``

@@ -226,7 +226,7 @@ def _oracle_warp(a: Plant4D, b: Plant4D, settings: EvalSettings) -> Tensor:
     seqs = [a.sequence.to(torch.float64), b.sequence.to(torch.float64)]
     # a label may name several branches of a frame (spurs, organs the rule split): label_features writes them
     # into one slot by an indexed assignment whose winner varies from run to run on several threads; the
-    # deterministic kernels make it the same every time (the oracle differed by up to 0.06 between two calls)
+    # deterministic kernels make it the same every time
     with _deterministic():
         feats = label_features(seqs, seqs[0].frames.T)
     k = min(ORACLE_COMPONENTS, sum(len(s) for s in seqs) - 1)
