@@ -361,14 +361,30 @@ def test_many_to_one_matches_one_by_one_and_pairwise():
 
 
 def test_pairwise_distances_in_processes(monkeypatch):
-    import torch4dtree.trees.registration as reg
+    import torch4dtree.trees.pairwise as pw
 
-    monkeypatch.setattr(reg, "MIN_PAIRS_PER_PROCESS", 1)  # force the pool even for 3 pairs
+    monkeypatch.setattr(pw, "MIN_PAIRS_PER_PROCESS", 1)  # force the pool even for 3 pairs
     rng = np.random.default_rng(8)
     batch = Trees.cat([random_tree(rng, n_side=(1, 2), depth=2, T=16) for _ in range(3)])
     D1 = pairwise_distances(batch, processes=1, progress=False)
     D2 = pairwise_distances(batch, processes=2, progress=False)
-    assert torch.allclose(D1, D2)
+    assert torch.equal(D1, D2)
+
+
+def test_pairwise_distances_on_an_executor_equal_inline():
+    """Rows run on a given executor give the same matrix, bit for bit, as inline; calls nest (no shared state)."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
+
+    rng = np.random.default_rng(9)
+    batch = Trees.cat([random_tree(rng, n_side=(1, 2), depth=2, T=12) for _ in range(3)])
+    inline = pairwise_distances(batch, processes=1, progress=False)
+    with ProcessPoolExecutor(2, mp_context=multiprocessing.get_context("spawn")) as pool:
+        spread = pairwise_distances(batch, progress=False, executor=pool)
+    assert torch.equal(inline, spread)
+    with ThreadPoolExecutor(2) as pool:  # two calls at once in one process
+        both = list(pool.map(lambda b: pairwise_distances(b, processes=1, progress=False), [batch, batch]))
+    assert all(torch.equal(inline, D) for D in both)
 
 
 # ----------------------------------------------------------------------------- data
@@ -426,7 +442,7 @@ def test_children_aware_parent_warp():
     """A straight stem carries one child at s = 0.3 in A and 0.6 in B. The stem's own DP warp is the
     identity (any other stretches it), which leaves the child 0.3 away: with a large lp the metric's
     infimum instead warps the stem so the child lands on its partner (stem cost L int (1 - sqrt(g'))^2)."""
-    import torch4dtree.trees.registration as reg
+    import torch4dtree.trees.refit as refit
 
     stem = torch.stack([torch.zeros(T), torch.zeros(T), torch.linspace(0, 1, T)], 1).double()
     leaf = torch.stack([torch.linspace(0, 0.8, T), torch.zeros(T), torch.zeros(T)], 1).double()
@@ -436,12 +452,12 @@ def test_children_aware_parent_warp():
                             dtype=torch.float64)
     lam = (1.0, 1.0, 10.0)  # matching the children (<= 0.9) beats leaving both unmatched (1.6)
     with_refit = register_trees(A, B, lambdas=lam, lp_relative=False, positions="warped")  # lp in the data's units
-    rounds = reg.LANDMARK_ROUNDS
+    rounds = refit.LANDMARK_ROUNDS
     try:
-        reg.LANDMARK_ROUNDS = 0
+        refit.LANDMARK_ROUNDS = 0
         stem_only = register_trees(A, B, lambdas=lam, lp_relative=False, positions="warped")
     finally:
-        reg.LANDMARK_ROUNDS = rounds
+        refit.LANDMARK_ROUNDS = rounds
     assert with_refit.matches == stem_only.matches == [(0, 0), (1, 1)]
     assert float(stem_only.distance) ** 2 == pytest.approx(10 * 0.3 ** 2, rel=0.05)
     # the piecewise-linear warp through (0.6, 0.3) costs 0.6 (1 - sqrt(0.5))^2 + 0.4 (1 - sqrt(1.75))^2 = 0.093
@@ -512,12 +528,12 @@ def test_children_refit_is_skipped_where_the_position_terms_are_negligible(monke
     """With lp = 1 on trees in mm the children's parameter terms are far below 1 % of a node's cost: the
     refit must not run there (applied anyway it changed Pheno4D warps for a 1e-4 gain and cost cycle
     consistency, benchmarks/README.md), so the result equals the refit-free one exactly."""
-    import torch4dtree.trees.registration as reg
+    import torch4dtree.trees.refit as refit
 
     rng = np.random.default_rng(22)
     A, B = random_tree(rng), random_tree(rng)
     r = register_trees(A, B, lp_relative=False)  # lp = 1 in the data's units
-    monkeypatch.setattr(reg, "LANDMARK_ROUNDS", 0)
+    monkeypatch.setattr(refit, "LANDMARK_ROUNDS", 0)
     r0 = register_trees(A, B, lp_relative=False)
     assert r.matches == r0.matches and torch.equal(r.gamma, r0.gamma)
     assert float(r.distance) == float(r0.distance)
@@ -592,14 +608,15 @@ def test_rotation_starts_spread_over_a_full_turn(rotation):
     could not see that bug because the side branches usually fix the spin anyway)."""
     import math
 
-    from torch4dtree.trees.registration import _initial_rotations, _prepare
+    from torch4dtree.trees.prepare import prepare_tree
+    from torch4dtree.trees.rotations import initial_rotations
 
     rng = np.random.default_rng(3)
     A, B = random_tree(rng, T=32), random_tree(rng, T=32)
     lam = (1.0, 1.0, 1.0)
     up = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)
     n = 12
-    starts = _initial_rotations(_prepare(B, lam), _prepare(A, lam), rotation, up, n, {})
+    starts = initial_rotations(prepare_tree(B, lam), prepare_tree(A, lam), rotation, up, n, {})
     assert len(starts) == n + 1  # the identity, the main branches' rotation, n - 1 spins of it
     base = starts[1]
     angles = []
@@ -628,7 +645,7 @@ def test_arclength_positions_ignore_parametrisation(positions):
     assert branch_accuracy(r, B, A) == 1.0
     assert float(r.distance) < 0.2 * float(r.distance_before)
     assert abs(float(r.distance) - float(shape_only.distance)) < 0.01 * float(shape_only.distance)
-    with pytest.raises(ValueError, match="unknown positions"):
+    with pytest.raises(ValueError, match="positions must be one of"):
         register_trees(B, A, positions="fraction")
 
 
@@ -681,10 +698,10 @@ def test_rank_positions_count_nodes_not_arc_length():
     """Node ranks of the main branch's children: opposite leaves share a rank, a node counts ~1 whatever the
     internodes' lengths (the same plant with its stem stretched above the first node has the same ranks), a short
     spur barely counts."""
-    from torch4dtree.trees.registration import _prepare
+    from torch4dtree.trees.prepare import prepare_tree
 
     def ranks(tree):
-        t = _prepare(tree, (1.0, 1.0, 1.0), "rank")
+        t = prepare_tree(tree, (1.0, 1.0, 1.0), "rank")
         return t.s[t.children[0]]
 
     r = ranks(_comb([20.0, 20.0, 40.0, 60.0]))
@@ -696,7 +713,7 @@ def test_rank_positions_count_nodes_not_arc_length():
     assert np.allclose(shift, shift[0], atol=1e-9) and 0.0 < shift[0] < 0.02, spur
     # deeper children (on side branches) keep their arc-length fractions
     tree = random_tree(np.random.default_rng(3), T=32)
-    rank, arc = (_prepare(tree, (1.0, 1.0, 1.0), p) for p in ("rank", "arclength"))
+    rank, arc = (prepare_tree(tree, (1.0, 1.0, 1.0), p) for p in ("rank", "arclength"))
     deeper = [i for i, p in enumerate(rank.parent) if p > 0]
     assert deeper and np.array_equal(rank.s[deeper], arc.s[deeper])
     assert not np.allclose(rank.s[rank.children[0]], arc.s[rank.children[0]])
