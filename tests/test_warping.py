@@ -387,7 +387,7 @@ def test_backend_choice_is_honoured(monkeypatch: pytest.MonkeyPatch) -> None:
     def boom(*args: object) -> None:
         raise RuntimeError("torch DP called")
 
-    monkeypatch.setattr(R, "_dp_torch", boom)
+    monkeypatch.setattr(R, "banded_dp_torch", boom)
     q1, q2 = srvf(rough_curves(2, 12, seed=60)), srvf(rough_curves(2, 12, seed=61))
     for backend in ("numba", "auto"):
         W.dp_warp(q1, q2, backend=backend)

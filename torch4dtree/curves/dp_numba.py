@@ -28,13 +28,13 @@ import torch
 from torch import Tensor
 
 from .srvf import inverse_srvf
-from .warps import _step_arrays
+from .warps import step_arrays
 
 try:  # numba is optional: without it the torch backend is used everywhere
     import numba
     import numba.core.event
 
-    from .refinement import _nb_gauss_newton, _nb_refine_finer
+    from .refinement import nb_gauss_newton, nb_refine_finer
 
     HAVE_NUMBA = True
 except ImportError:  # pragma: no cover - exercised only without numba
@@ -365,7 +365,7 @@ if HAVE_NUMBA:
 
     @numba.njit(cache=True, boundscheck=False)
     def _nb_band(center: np.ndarray, M: int, n: int, w: int, lo: np.ndarray, hi: np.ndarray) -> None:
-        """Same band as ``_band_around`` for one warp ``center (M+1,)``."""
+        """Same band as ``band_around`` for one warp ``center (M+1,)``."""
         for i in range(M + 1):
             g0 = center[max(i - w, 0)] * M
             g1 = center[min(i + w, M)] * M
@@ -433,7 +433,7 @@ if HAVE_NUMBA:
             if refine > 0:
                 if prev.shape[0] == M + 1 and _nb_energy(q1r, beta2, prev, eye) < e:
                     g[:] = prev  # the band search lost to the warp it started from
-                _nb_gauss_newton(q1r, beta2, g, refine)
+                nb_gauss_newton(q1r, beta2, g, refine)
                 e = _nb_energy(q1r, beta2, g, eye)
             if e < best:
                 best = e
@@ -707,7 +707,7 @@ def _first_call(*args: object, hint: bool = True) -> float | None:
         with numba.core.event.install_listener("numba:compile", notice):
             _nb_pairs(*args)
             # the temporal registration's refinement on a finer moving trajectory (its real calls' argument types)
-            _nb_refine_finer(np.zeros((0, 2, 1)), np.zeros((0, 3, 1)), np.zeros((0, 3)), 0, np.ones(1, np.int64),
+            nb_refine_finer(np.zeros((0, 2, 1)), np.zeros((0, 3, 1)), np.zeros((0, 3)), 0, np.ones(1, np.int64),
                              np.zeros(0, np.bool_))
             # the tree registration's energies of several warps of one parent pair
             _nb_warp_energies(np.zeros((1, 3)), np.zeros((1, 3)), np.zeros((0, 2)), np.zeros(0))
@@ -753,7 +753,7 @@ def warm_up() -> float | None:
     if _READY:
         return None
     z = np.zeros((0, 8, 3))
-    A, Bs = _step_arrays(2)
+    A, Bs = step_arrays(2)
     outs = (np.empty(0), np.empty(0), np.empty((0, 8)), np.empty((0, 3, 3)), np.empty((0, 8, 3)), np.empty((0, 7, 3)))
     # the same argument types as run_pairs, so this compiles (or loads) the one signature real calls use
     return _first_call(True, z, z, False, A, Bs, A, Bs, np.zeros(9, np.int64), np.zeros(3), 0.0, 0, 1, *outs,
@@ -767,8 +767,8 @@ def warp_energies_numba(q1: np.ndarray, q2: np.ndarray, gammas: np.ndarray) -> n
     return out
 
 
-def _dp_numba(q1: Tensor, q2: Tensor, n: int, lo: np.ndarray, hi: np.ndarray) -> tuple[Tensor, Tensor]:
-    A, Bs = _step_arrays(n)
+def banded_dp_numba(q1: Tensor, q2: Tensor, n: int, lo: np.ndarray, hi: np.ndarray) -> tuple[Tensor, Tensor]:
+    A, Bs = step_arrays(n)
     q1n = q1.detach().to("cpu", torch.float64).contiguous().numpy()
     beta2 = inverse_srvf(q2.detach().to("cpu", torch.float64)).contiguous().numpy()
     energy, gamma = _nb_dp_serial(q1n, beta2, A, Bs, lo, hi)

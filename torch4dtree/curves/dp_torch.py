@@ -18,7 +18,7 @@ def _shift_right(x: Tensor, b: int, fill: Tensor) -> Tensor:
     return torch.cat([fill.expand(x.shape[0], b), x[:, : n - b]], 1)
 
 
-def _dp_torch(q1: Tensor, q2: Tensor, n: int, lo: np.ndarray, hi: np.ndarray) -> tuple[Tensor, Tensor]:
+def banded_dp_torch(q1: Tensor, q2: Tensor, n: int, lo: np.ndarray, hi: np.ndarray) -> tuple[Tensor, Tensor]:
     """The same DP, vectorised over pairs, columns and steps; loops over lattice rows only."""
     B, M, d = q1.shape
     dev, dt = q1.device, q1.dtype

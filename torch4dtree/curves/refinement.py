@@ -101,7 +101,7 @@ if HAVE_NUMBA:
         return e
 
     @numba.njit(cache=True, boundscheck=False)
-    def _nb_gauss_newton(q1: np.ndarray, beta2: np.ndarray, gamma: np.ndarray, iters: int) -> None:
+    def nb_gauss_newton(q1: np.ndarray, beta2: np.ndarray, gamma: np.ndarray, iters: int) -> None:
         """Refine the interior nodes of ``gamma (M+1,)`` in place (see the module docstring)."""
         M, d = q1.shape
         if M < 2 or iters <= 0:
@@ -166,7 +166,7 @@ if HAVE_NUMBA:
 
 
     @numba.njit(cache=True, boundscheck=False)
-    def _nb_refine_finer(q1: np.ndarray, fine: np.ndarray, gamma: np.ndarray, iters: int, strides: np.ndarray,
+    def nb_refine_finer(q1: np.ndarray, fine: np.ndarray, gamma: np.ndarray, iters: int, strides: np.ndarray,
                          finer: np.ndarray) -> None:
         """:func:`refine_on_finer` for a batch: ``q1 (B, M, d)``, ``fine (B, M2+1, d)``, ``gamma (B, M+1)`` and
         ``finer (B,)`` written in place."""
@@ -177,7 +177,7 @@ if HAVE_NUMBA:
         for b in range(B):
             g = gamma[b].copy()
             for s in strides:
-                _nb_gauss_newton(q1[b], np.ascontiguousarray(fine[b, ::s]), g, iters)
+                nb_gauss_newton(q1[b], np.ascontiguousarray(fine[b, ::s]), g, iters)
             e_start = _nb_residuals(q1[b], np.ascontiguousarray(fine[b, ::F]), gamma[b], R, J0, J1, P, D)
             e_fine = _nb_residuals(q1[b], fine[b], g, R, J0, J1, P, D)
             # the levels below the finest minimise other energies: the start read on fine is a candidate too
@@ -227,7 +227,7 @@ def refine_on_finer(q1: Tensor, fine: Tensor, gamma: Tensor, iters: int, backend
     if backend == "numba" and HAVE_NUMBA:
         out = gamma.detach().to("cpu", torch.float64).contiguous().numpy().copy()
         finer = np.zeros(B, np.bool_)
-        _nb_refine_finer(q1.detach().to("cpu", torch.float64).contiguous().numpy(),
+        nb_refine_finer(q1.detach().to("cpu", torch.float64).contiguous().numpy(),
                          fine.detach().to("cpu", torch.float64).contiguous().numpy(), out, int(iters),
                          np.asarray(strides, np.int64), finer)
         return torch.from_numpy(out).to(gamma.device, gamma.dtype), torch.from_numpy(finer).to(gamma.device)
@@ -274,7 +274,7 @@ def _residuals_torch(q1: Tensor, beta2: Tensor, x: Tensor) -> tuple[Tensor, Tens
 
 
 def gauss_newton_torch(q1: Tensor, beta2: Tensor, gamma: Tensor, iters: int) -> Tensor:
-    """Batched torch twin of ``_nb_gauss_newton``: refined copy of ``gamma (B, M+1)`` (any device)."""
+    """Batched torch twin of ``nb_gauss_newton``: refined copy of ``gamma (B, M+1)`` (any device)."""
     B, M, _ = q1.shape
     gamma = gamma.clone()
     if M < 2 or iters <= 0:

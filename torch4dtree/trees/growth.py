@@ -20,9 +20,10 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 
+from ..settings import DEFAULT_T
 from .registration import effective_lambdas, register_to_reference
 from .skeleton import follow_continuations, resolve_branch_points, skeleton_to_trees
-from .structures import DEFAULT_T, Trees
+from .structures import Trees
 
 __all__ = ["alternative_main_paths", "consistent_frames"]
 

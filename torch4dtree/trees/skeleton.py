@@ -28,7 +28,8 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 
-from .structures import DEFAULT_T, TreeError, Trees
+from ..settings import DEFAULT_T, HIERARCHIES, check_choice
+from .structures import TreeError, Trees
 
 
 def validate_skeleton(xyz: np.ndarray, parent: np.ndarray, where: str, ids: np.ndarray | None = None) -> np.ndarray:
@@ -122,7 +123,6 @@ def _children(parent: np.ndarray) -> list[list[int]]:
     return children
 
 
-HIERARCHIES = ("straightest", "heaviest", "longest")
 # straightest rule: shares of lengths of the geometry, never of the node spacing, chosen by measurement (the share
 # of ~3700 branch points of the realistic synthetic plants that continue into their own organ, then identities and
 # Pheno4D main-branch agreement; benchmarks/README.md, issue 11)
@@ -222,8 +222,7 @@ def continuation_children(xyz: np.ndarray, parent: np.ndarray, order: np.ndarray
                           edge: np.ndarray, hierarchy: str = "straightest", where: str = "skeleton",
                           window: float | None = None) -> np.ndarray:
     """``best (n,)``: the child that continues the branch through each node (``-1`` at leaves)."""
-    if hierarchy not in HIERARCHIES:
-        raise TreeError(f"{where}: unknown hierarchy rule {hierarchy!r}; expected one of {', '.join(HIERARCHIES)}")
+    check_choice(f"{where}: hierarchy", hierarchy, HIERARCHIES)
     n = len(xyz)
     reach, weight = _subtree_lengths(order, children, edge)
     length = edge.tolist()

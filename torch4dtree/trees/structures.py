@@ -25,8 +25,8 @@ import torch
 from torch import Tensor
 
 from ..curves.srvf import curve_length, interpolate_curve, resample_polylines
+from ..settings import DEFAULT_T
 
-DEFAULT_T = 64
 # a side branch whose first point is within this many parent grid steps of its parent is moved onto it whole
 BRIDGE_GAP = 0.5
 
