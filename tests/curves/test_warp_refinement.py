@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-from test_warping import rough_curves, smooth_curves
+from samples import rough_curves, smooth_curves
 
 from torch4dtree import curves as W
 from torch4dtree.curves import refinement as R

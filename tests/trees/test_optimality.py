@@ -20,7 +20,7 @@ from functools import cache
 import numpy as np
 import pytest
 import torch
-from test_warping import path_to_warp
+from samples import path_to_warp
 
 import torch4dtree.trees.solver as solver
 from torch4dtree.curves import srvf, warp_energy
