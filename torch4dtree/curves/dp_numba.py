@@ -10,8 +10,8 @@ ones run on the calling thread alone. The first compile in a process prints a on
 Compile time: numba links every callee into its caller and LLVM re-optimises the whole linked module at
 each level, so the cold compile grows with the depth of the call chain. Functions with a single caller on
 the main chain (``_nb_register_one``, ``_nb_alternate``, ``_nb_dp_search``) are therefore inlined at numba
-level (``inline="always"``): same code and results, one level each less (measured, CPU time of a cold
-compile on 2 cores: three entry kernels 75 + 59 + 69 s before, one entry 63 s, flattened 57 s, inlined 49 s).
+level (``inline="always"``): same code and results, one level each less, a shorter cold compile
+(docs/experiments.md).
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ import torch
 from torch import Tensor
 
 from .srvf import inverse_srvf
-from .warps import step_arrays
+from .warps import GRID_SNAP, step_arrays
 
 try:  # numba is optional: without it the torch backend is used everywhere
     import numba
@@ -282,7 +282,7 @@ if HAVE_NUMBA:
                 scale += N[i, i] * N[i, i]
                 for j in range(i + 1, 4):
                     off += N[i, j] * N[i, j]
-            if off <= 1e-32 * scale or off == 0.0:
+            if off <= JACOBI_TOL * scale or off == 0.0:
                 break
             for p in range(3):
                 for q in range(p + 1, 4):
@@ -371,8 +371,8 @@ if HAVE_NUMBA:
             g1 = center[min(i + w, M)] * M
             rlo = max(-(-i // n), M - n * (M - i))
             rhi = min(n * i, M - (-(-(M - i) // n)))
-            lo[i] = max((math.floor(g0 + 1e-9)) - w, rlo)
-            hi[i] = max(min((math.ceil(g1 - 1e-9)) + w, rhi), lo[i])
+            lo[i] = max((math.floor(g0 + GRID_SNAP)) - w, rlo)
+            hi[i] = max(min((math.ceil(g1 - GRID_SNAP)) + w, rhi), lo[i])
 
     @numba.njit(cache=True, boundscheck=False)
     def _nb_inverse_from(q: np.ndarray) -> np.ndarray:
@@ -637,8 +637,10 @@ if HAVE_NUMBA:
 # ----------------------------------------------------------------------------- threads
 # Each thread gets at least this many pairs: a small batch runs on the calling thread alone, because
 # waking a second thread costs more than it saves, and on a machine whose other cores are busy the
-# woken thread can wait a whole scheduler time slice (milliseconds) for a core (benchmarks/README.md).
+# woken thread can wait a whole scheduler time slice (milliseconds) for a core.
 PARALLEL_MIN_PAIRS = 16
+# Jacobi sweeps stop when the off-diagonal mass is this share of the diagonal's (below double rounding)
+JACOBI_TOL = 1e-32
 
 _POOL: ThreadPoolExecutor | None = None
 _POOL_LOCK = threading.Lock()
@@ -662,7 +664,7 @@ def _pool() -> ThreadPoolExecutor:
 
 
 # ----------------------------------------------------------------------------- compile notice
-# cold compile of _nb_pairs (every kernel): 49 s of CPU on this project's 2-core machine; cached on disk afterwards
+# what the first-compile notice announces (the cold compile of _nb_pairs; cached on disk afterwards)
 COMPILE_ESTIMATE = "about a minute on 2 cores"
 _READY = False  # the kernels have been loaded (or compiled) in this process
 

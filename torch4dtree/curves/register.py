@@ -35,6 +35,9 @@ from .warps import band_around, identity_warp, reachable_band, step_arrays, warp
 __all__ = ["CurveRegistration", "DPSettings", "DPWarp", "dp_settings", "dp_warp", "elastic_distance", "pick_backend",
            "register_curves", "register_numba", "warp_energies"]
 
+# floor under an energy before its square root: the gradient stays finite where the energy is 0 (0 is returned)
+MIN_ENERGY = 1e-300
+
 
 # ----------------------------------------------------------------------------- DP driver
 
@@ -348,8 +351,8 @@ def dp_warp(q1: Tensor, q2: Tensor, neighbourhood: int = 6, band: int | None = 4
             until at most ``coarse``), then on the fine grid only within ``band`` cells of the coarse
             warp. ``None``: one DP over the whole lattice (its exact optimum over all lattice warps).
         band_neighbourhood: steps of the banded (finer) DPs (``None``: ``neighbourhood``). The
-            defaults (6 on the coarse grid, 5 in a band of 4 cells) are a speed / accuracy trade-off
-            measured in benchmarks/README.md; ``band=None`` gives the exact lattice optimum.
+            defaults (6 on the coarse grid, 5 in a band of 4 cells) trade a little accuracy for speed
+            (docs/experiments.md); ``band=None`` gives the exact lattice optimum.
         refine: iterations of a damped Gauss-Newton refinement that moves the warp's nodes off the
             lattice (0 = pure DP; ``torch4dtree.curves.refinement``); it only accepts steps that lower
             the energy and keeps the warp strictly monotone.
@@ -389,19 +392,18 @@ def register_curves(moving: Tensor, reference: Tensor, rotation: str = "none", s
         neighbourhood, band, coarse, band_neighbourhood, refine, backend: DP settings, see :func:`dp_warp`.
             The defaults here (slopes up to 3 on the coarsest grid, where the rotation / warp alternation
             runs, and up to 4 in the bands of the finer grids) are faster than :func:`dp_warp`'s 6 / 5 and
-            about as good: 1.75x less CPU, mean energies -7 % to +12 % (mostly within +-3 %) on random,
-            helix and Pheno4D pairs at T = 50, 100, 200 (benchmarks/README.md). Steep slopes on the coarse
-            grid let the alternation settle on degenerate warps; the finer grids and the refinement then
-            recover fine detail. With ``band=None`` (one grid) ``neighbourhood`` is the only lattice:
-            raise it for strongly non-uniform warps.
+            about as good (docs/experiments.md). Steep slopes on the coarse grid let the alternation settle
+            on degenerate warps; the finer grids and the refinement then recover fine detail. With
+            ``band=None`` (one grid) ``neighbourhood`` is the only lattice: raise it for strongly non-uniform
+            warps.
         up: the vertical axis for ``rotation="vertical"``.
         max_iters: rounds of (DP warp, optimal rotation) on the coarsest grid (with a rotation, that
             grid has at least ``4 d`` segments); ``fine_iters`` on finer
             grids. Rounds stop early when the energy decreases by less than ``tol`` relatively.
         starts: initial rotations tried on the coarsest grid (the Kabsch rotation at the identity warp,
             the identity, then that Kabsch rotation turned by half-turns about the axes (so3) or by
-            turns about ``up`` (vertical)); the best is kept. Default 5 with a rotation (one start
-            gets stuck in a wrong basin now and then, e.g. 180 degrees off), 1 without.
+            turns about ``up`` (vertical)); the best is kept. Default 5 with a rotation (a single start
+            can get stuck in a wrong basin, e.g. 180 degrees off), 1 without.
 
     Returns:
         :class:`CurveRegistration`. Warps and rotations are found without gradients; ``distance``,
@@ -438,7 +440,7 @@ def register_curves(moving: Tensor, reference: Tensor, rotation: str = "none", s
     registered = registered - registered[:, :1] + beta_r[:, :1]
     q_reg = srvf(registered)
     energy = srvf_sq_distance(q_ref, q_reg)
-    distance = torch.where(energy > 0, energy.clamp_min(1e-300).sqrt(), torch.zeros_like(energy))
+    distance = torch.where(energy > 0, energy.clamp_min(MIN_ENERGY).sqrt(), torch.zeros_like(energy))
     out = CurveRegistration(gamma, O, distance, energy, before.to(energy.dtype), registered, q_reg)
     if single:
         out = CurveRegistration(*(x[0] for x in out))

@@ -8,7 +8,7 @@ Discretisation (used everywhere in the package):
   ``q_k = v_k / sqrt(|v_k|)`` with ``v_k = (beta_{k+1} - beta_k) (T - 1)``.
 * The L2 inner product of SRVFs is ``<q1, q2> = sum_k q1_k . q2_k / (T - 1)``.
 
-With these choices the relations of SPEC §3 hold exactly, not only up to quadrature error:
+With these choices the relations of docs/method.md §3 hold exactly, not only up to quadrature error:
 ``||q||^2`` is the polyline length and ``inverse_srvf(srvf(beta), beta[..., 0, :]) == beta``.
 A warp ``gamma`` is a monotone map of ``[0, 1]`` given by its values on the ``T`` grid points,
 shape ``(..., T)``; it acts on a curve by resampling ``beta(gamma(s_k))`` (linear

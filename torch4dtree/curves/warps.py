@@ -11,6 +11,9 @@ from torch import Tensor
 
 from .srvf import interpolate_curve, srvf_sq_distance, uniform_grid, warp_srvf
 
+# a warp value within rounding of a grid line counts as on it when a band is cut to whole cells
+GRID_SNAP = 1e-9
+
 # ----------------------------------------------------------------------------- warp utilities
 
 
@@ -99,8 +102,8 @@ def band_around(center: Tensor, M: int, n: int, width: int) -> tuple[np.ndarray,
     """
     g = center.detach().to("cpu", torch.float64).numpy() * M
     idx = np.arange(M + 1)
-    lo = np.floor(g[:, np.clip(idx - width, 0, M)] + 1e-9) - width
-    hi = np.ceil(g[:, np.clip(idx + width, 0, M)] - 1e-9) + width
+    lo = np.floor(g[:, np.clip(idx - width, 0, M)] + GRID_SNAP) - width
+    hi = np.ceil(g[:, np.clip(idx + width, 0, M)] - GRID_SNAP) + width
     rlo, rhi = reachable_band(M, n)
     lo = np.maximum(lo.astype(np.int64), rlo)
     hi = np.minimum(hi.astype(np.int64), rhi)

@@ -3,7 +3,7 @@
 Registration writes trees into one **layout**: a template tree of ``S`` slots (``slot_parent``,
 ``slot_depth``; slot 0 is the main branch, parents come before children). Every tree of the batch
 has one SRVF per slot, a null branch (``q = 0``) where it has nothing. In that layout the metric of
-SPEC §3,
+docs/method.md §3,
 
     d^2(Q, Q') = lm ||q0 - q0'||^2 + sum_i [ lp (s_i - s_i')^2 + ls d^2(Q_i, Q_i') ]   (recursively),
 
@@ -69,7 +69,7 @@ class AlignedTrees:
         slot_parent: ``(S,)`` long, parent slot (``-1`` for slot 0); parents come first.
         slot_depth: ``(S,)`` long, layer of each slot (0 = main branch).
         source: ``(n, S)`` long, index of the original branch (within its tree) or ``-1``.
-        lambdas: ``(lm, ls, lp)`` metric weights (SPEC §3 order).
+        lambdas: ``(lm, ls, lp)`` metric weights (docs/method.md §3 order).
     """
 
     q: Tensor

@@ -1,4 +1,4 @@
-"""Geodesics between registered 3D trees (SPEC §3): straight lines in the common slot layout.
+"""Geodesics between registered 3D trees (docs/method.md §3): straight lines in the common slot layout.
 
 After registration both trees live in one :class:`AlignedTrees` layout where the metric is a
 weighted L2 norm, so the geodesic is ``(1 - t) Q_moving* + t Q_reference`` (SRVFs, bifurcation

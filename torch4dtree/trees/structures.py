@@ -1,6 +1,6 @@
 """Ragged batches of trees (`Trees`) and 4D trees (`TreeSequence`).
 
-One canonical form, everything else derived (see DESIGN.md):
+One canonical form, everything else derived (docs/method.md §2):
 
 * every branch of every tree is **packed** in one tensor ``points (N, T, d)`` of polylines
   resampled uniformly in arc length (``T`` points each),
