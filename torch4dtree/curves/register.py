@@ -361,6 +361,18 @@ def dp_warp(q1: Tensor, q2: Tensor, neighbourhood: int = 6, band: int | None = 4
     Returns:
         ``DPWarp(gamma (B, M+1), energy (B,))`` with ``energy = ||q1 - warp_srvf(q2, gamma)||^2``,
         never above the identity warp's energy.
+
+    Example:
+        >>> import torch
+        >>> from torch4dtree.curves import random_warp
+        >>> s = torch.linspace(0, 1, 16, dtype=torch.float64)
+        >>> x = torch.stack([torch.cos(2 * s), torch.sin(2 * s), s], dim=1)  # a helix arc
+        >>> gamma = random_warp(1, 16, generator=torch.Generator().manual_seed(0), strength=0.5)[0]
+        >>> y = warp_curve(x, gamma)  # the same curve, reparameterised
+        >>> res = dp_warp(srvf(x), srvf(y))
+        >>> before = warp_energy(srvf(x)[None], srvf(y)[None], identity_warp(1, 16))[0]  # the identity warp's
+        >>> res.gamma.shape, bool(res.energy < before)
+        (torch.Size([16]), True)
     """
     q2, q1, single = _check_inputs(q2, q1, 1, "SRVFs")
     cfg = dp_settings(neighbourhood, band, coarse, band_neighbourhood, 1, 1, 0.0, refine, 1)
@@ -408,6 +420,17 @@ def register_curves(moving: Tensor, reference: Tensor, rotation: str = "none", s
     Returns:
         :class:`CurveRegistration`. Warps and rotations are found without gradients; ``distance``,
         ``registered`` and ``q_registered`` are differentiable in the inputs given them.
+
+    Example:
+        >>> import torch
+        >>> from torch4dtree.curves import random_warp
+        >>> s = torch.linspace(0, 1, 16, dtype=torch.float64)
+        >>> x = torch.stack([torch.cos(2 * s), torch.sin(2 * s), s], dim=1)  # a helix arc
+        >>> gamma = random_warp(1, 16, generator=torch.Generator().manual_seed(0), strength=0.5)[0]
+        >>> y = warp_curve(x, gamma)  # the same curve, reparameterised
+        >>> r = register_curves(y, x)
+        >>> r.gamma.shape, bool(r.energy < 0.01 * r.energy_before)
+        (torch.Size([16]), True)
     """
     if srvf_input:
         moving, reference, single = _check_inputs(moving, reference, 1, "SRVFs")
@@ -448,6 +471,17 @@ def register_curves(moving: Tensor, reference: Tensor, rotation: str = "none", s
 
 
 def elastic_distance(moving: Tensor, reference: Tensor, **kwargs: object) -> Tensor:
-    """Elastic distance ``(B,)`` (or a scalar for one pair): ``register_curves(...).distance``."""
+    """Elastic distance ``(B,)`` (or a scalar for one pair): ``register_curves(...).distance``.
+
+    Example:
+        >>> import torch
+        >>> from torch4dtree.curves import random_warp
+        >>> s = torch.linspace(0, 1, 16, dtype=torch.float64)
+        >>> x = torch.stack([torch.cos(2 * s), torch.sin(2 * s), s], dim=1)  # a helix arc
+        >>> gamma = random_warp(1, 16, generator=torch.Generator().manual_seed(0), strength=0.5)[0]
+        >>> y = warp_curve(x, gamma)  # the same curve, reparameterised
+        >>> float(elastic_distance(x, x)) < 1e-6, float(elastic_distance(y, x)) < 0.1
+        (True, True)
+    """
     return register_curves(moving, reference, **kwargs).distance  # type: ignore[arg-type]
 

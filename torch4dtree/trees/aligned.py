@@ -70,6 +70,24 @@ class AlignedTrees:
         slot_depth: ``(S,)`` long, layer of each slot (0 = main branch).
         source: ``(n, S)`` long, index of the original branch (within its tree) or ``-1``.
         lambdas: ``(lm, ls, lp)`` metric weights (docs/method.md §3 order).
+
+    Example:
+        >>> import torch
+        >>> from torch4dtree.trees import Trees, register_trees
+        >>> t = torch.linspace(0, 1, 8, dtype=torch.float64)[:, None]
+        >>> stem = torch.cat([0 * t, 0 * t, t], dim=1)
+        >>> leaf = torch.cat([t, 0 * t, 0.5 + 0 * t], dim=1)  # leaves the stem at its middle
+        >>> tree = Trees.from_branches([[stem, leaf]], [[-1, 0]], T=8, dtype=torch.float64)
+        >>> bent = torch.cat([t, 0.3 * t ** 2, 0.6 + 0 * t], dim=1)
+        >>> other = Trees.from_branches([[stem, bent]], [[-1, 0]], T=8, dtype=torch.float64)
+        >>> layout = register_trees(other, tree, positions="warped").aligned  # [registered other, tree] in one layout
+        >>> layout.q.shape, layout.slot_parent.tolist()
+        (torch.Size([2, 2, 7, 3]), [-1, 0])
+        >>> f = layout.features()  # the metric is the Euclidean one on the features
+        >>> bool(torch.isclose((f[0] - f[1]).norm(), register_trees(other, tree, positions="warped").distance))
+        True
+        >>> AlignedTrees.from_trees(tree).to_trees().num_branches
+        tensor([2])
     """
 
     q: Tensor

@@ -55,6 +55,19 @@ def map_points(registration: TreeRegistration, branch: Tensor, t: Tensor) -> tup
     Returns:
         ``(branch (P,), t (P,))`` on the reference; branch ``-1`` (and ``t = nan``) where the moving
         branch is matched to null.
+
+    Example:
+        >>> import torch
+        >>> from torch4dtree.trees import Trees
+        >>> t = torch.linspace(0, 1, 8, dtype=torch.float64)[:, None]
+        >>> stem = torch.cat([0 * t, 0 * t, t], dim=1)
+        >>> leaf = torch.cat([t, 0 * t, 0.5 + 0 * t], dim=1)  # leaves the stem at its middle
+        >>> tree = Trees.from_branches([[stem, leaf]], [[-1, 0]], T=8, dtype=torch.float64)
+        >>> bent = torch.cat([t, 0.3 * t ** 2, 0.6 + 0 * t], dim=1)
+        >>> other = Trees.from_branches([[stem, bent]], [[-1, 0]], T=8, dtype=torch.float64)
+        >>> branch, t_image = map_points(register_trees(other, tree), torch.tensor([1]), torch.tensor([0.5]).double())
+        >>> branch.tolist(), t_image.tolist()
+        ([1], [0.5])
     """
     match = dict(registration.matches)
     gamma = registration.gamma.detach().to("cpu", torch.float64).numpy()
@@ -152,6 +165,19 @@ def cycle_consistency(a: Trees, b: Trees, eps: Sequence[float] = DEFAULT_EPS,
     """Cycle consistency of the registrations ``a -> b`` and ``b -> a`` (computed unless given).
 
     ``kwargs`` go to :func:`register_trees`. See the module docstring for how unmatched points count.
+
+    Example:
+        >>> import torch
+        >>> from torch4dtree.trees import Trees
+        >>> t = torch.linspace(0, 1, 8, dtype=torch.float64)[:, None]
+        >>> stem = torch.cat([0 * t, 0 * t, t], dim=1)
+        >>> leaf = torch.cat([t, 0 * t, 0.5 + 0 * t], dim=1)  # leaves the stem at its middle
+        >>> tree = Trees.from_branches([[stem, leaf]], [[-1, 0]], T=8, dtype=torch.float64)
+        >>> bent = torch.cat([t, 0.3 * t ** 2, 0.6 + 0 * t], dim=1)
+        >>> other = Trees.from_branches([[stem, bent]], [[-1, 0]], T=8, dtype=torch.float64)
+        >>> cc = cycle_consistency(other, tree)
+        >>> cc.eps, cc.error.tolist(), cc.unmatched
+        ((0.1, 0.05, 0.02, 0.01), [0.0, 0.0, 0.0, 0.0], 0.0)
     """
     fwd = forward if forward is not None else register_trees(a, b, **kwargs)  # type: ignore[arg-type]
     bwd = backward if backward is not None else register_trees(b, a, **kwargs)  # type: ignore[arg-type]

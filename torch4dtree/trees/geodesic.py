@@ -40,5 +40,18 @@ def geodesic(registration: TreeRegistration | AlignedTrees, n_steps: int = 5, ep
     Branches shorter than ``eps`` (null slots, or branches that have just appeared) are dropped;
     each tree's branch ``label`` is its slot index, so a branch keeps its identity along the path.
     The path's length is ``registration.distance`` (constant speed in the metric).
+
+    Example:
+        >>> import torch
+        >>> from torch4dtree.trees import Trees, register_trees
+        >>> t = torch.linspace(0, 1, 8, dtype=torch.float64)[:, None]
+        >>> stem = torch.cat([0 * t, 0 * t, t], dim=1)
+        >>> leaf = torch.cat([t, 0 * t, 0.5 + 0 * t], dim=1)  # leaves the stem at its middle
+        >>> tree = Trees.from_branches([[stem, leaf]], [[-1, 0]], T=8, dtype=torch.float64)
+        >>> bent = torch.cat([t, 0.3 * t ** 2, 0.6 + 0 * t], dim=1)
+        >>> other = Trees.from_branches([[stem, bent]], [[-1, 0]], T=8, dtype=torch.float64)
+        >>> path = geodesic(register_trees(other, tree), n_steps=3)  # other, the midpoint, tree
+        >>> path.num_trees, path.num_branches.tolist()
+        (3, [2, 2, 2])
     """
     return geodesic_aligned(registration, n_steps).to_trees(eps)

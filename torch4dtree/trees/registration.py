@@ -75,15 +75,6 @@ class TreeRegistration(NamedTuple):
       features' distance).
     * ``used_index_order``: the index-order solution was better than the optimised one and was kept.
 
-    Example:
-        >>> import torch
-        >>> t = torch.linspace(0, 1, 8, dtype=torch.float64)[:, None]
-        >>> stem = torch.cat([0 * t, 0 * t, t], dim=1)
-        >>> leaf = torch.cat([t, 0 * t, 0.5 + 0 * t], dim=1)
-        >>> tree = Trees.from_branches([[stem, leaf]], [[-1, 0]], T=8, dtype=torch.float64)
-        >>> r = register_trees(tree, tree)
-        >>> r.matches, r.unmatched_moving, float(r.distance)
-        ([(0, 0), (1, 1)], [], 0.0)
     """
 
     distance: Tensor
@@ -387,7 +378,19 @@ def register_trees(moving: Trees, reference: Trees, lambdas: Sequence[float] = (
     :func:`register_to_reference`.
 
     Returns a :class:`TreeRegistration`; ``distance`` is the tree-shape distance (never above ``distance_before``,
-    the index-order one). See :class:`TreeRegistration` for an example.
+    the index-order one).
+
+    Example:
+        >>> import torch
+        >>> t = torch.linspace(0, 1, 8, dtype=torch.float64)[:, None]
+        >>> stem = torch.cat([0 * t, 0 * t, t], dim=1)
+        >>> leaf = torch.cat([t, 0 * t, 0.5 + 0 * t], dim=1)  # leaves the stem at its middle
+        >>> tree = Trees.from_branches([[stem, leaf]], [[-1, 0]], T=8, dtype=torch.float64)
+        >>> bent = torch.cat([t, 0.3 * t ** 2, 0.6 + 0 * t], dim=1)
+        >>> other = Trees.from_branches([[stem, bent]], [[-1, 0]], T=8, dtype=torch.float64)
+        >>> r = register_trees(other, tree)
+        >>> r.matches, r.unmatched_moving, round(float(register_trees(tree, tree).distance), 6)
+        ([(0, 0), (1, 1)], [], 0.0)
     """
     if moving.num_trees != 1:
         raise ValueError(f"moving must be a single tree, got {moving.num_trees}")

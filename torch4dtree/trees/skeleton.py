@@ -372,6 +372,13 @@ def skeleton_to_trees(
 
     ``node_labels (n,)``, if given, labels each branch by the most common label of its own nodes
     (the branch point it starts from belongs to the parent and is not counted).
+
+    Example:
+        >>> import numpy as np
+        >>> xyz = np.array([[0, 0, 0], [0, 0, 1], [0, 0, 2], [1, 0, 1.5]], dtype=float)  # a stem and one side node
+        >>> tree = skeleton_to_trees(xyz, np.array([-1, 0, 1, 1]), T=8)
+        >>> tree.num_branches.tolist(), tree.parent.tolist(), tree.s.tolist()
+        ([2], [-1, 0], [0.0, 0.5])
     """
     polylines, parents, paths = skeleton_to_branches(
         xyz, parent, max_layers, min_branch_length, main_path, where, ids, hierarchy, window

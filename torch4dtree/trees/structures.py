@@ -45,6 +45,17 @@ class Trees:
         s: ``(N,)`` bifurcation parameter on the parent in ``[0, 1]`` (``0`` for a main branch).
         num_branches: ``(n_trees,)`` long, branches per tree (each at least 1).
         label: ``(N,)`` long ground-truth branch identity, ``-1`` where unknown.
+
+    Example:
+        >>> import torch
+        >>> t = torch.linspace(0, 1, 8, dtype=torch.float64)[:, None]
+        >>> stem = torch.cat([0 * t, 0 * t, t], dim=1)
+        >>> leaf = torch.cat([t, 0 * t, 0.5 + 0 * t], dim=1)  # starts on the stem at half its length
+        >>> tree = Trees.from_branches([[stem, leaf]], [[-1, 0]], T=8, dtype=torch.float64)
+        >>> tree.num_trees, tree.points.shape, tree.parent.tolist(), [round(x, 6) for x in tree.s.tolist()]
+        (1, torch.Size([2, 8, 3]), [-1, 0], [0.0, 0.5])
+        >>> Trees.cat([tree, tree]).num_branches.tolist()
+        [2, 2]
     """
 
     points: Tensor
