@@ -256,13 +256,13 @@ def register_to_reference(trees: Trees, reference: Trees, lambdas: Sequence[floa
         n_starts: starting rotations spun evenly about the vertical (or the reference main branch) axis; they are
             ranked on the top two layers and the best ``KEEP_STARTS`` run in full. 12 (30 degrees apart) keeps
             plants with spiral leaves out of wrong local minima.
-        max_iters: rounds of (warps + matchings, rotation) at most.
+        max_iters: rounds of (warps + matchings, rotation) at most (10: the alternation settles within a few).
         tol: stop alternating when the energy decreases by less than this share (1e-3: a finer tolerance costs
             time for no visible change).
         neighbourhood: DP slopes, see :func:`torch4dtree.curves.dp_warp` (4: the fastest and most cycle-consistent
             at T = 64; 6 for strongly non-uniform warps).
-        band: DP band around the diagonal, ``None``: the full lattice.
-        coarse: DP coarse-to-fine grid size, ``None``: off.
+        band: DP band of a coarse-to-fine search; ``None`` (default): the full lattice, its exact optimum.
+        coarse: DP coarse grid size when ``band`` is set.
         refine: gradient refinement steps of each DP warp (0: refinement lowers each energy but makes the
             correspondences less cycle-consistent).
         prune: skip subtree pairs that provably cannot be matched (exact: does not change the result).
@@ -278,10 +278,10 @@ def register_to_reference(trees: Trees, reference: Trees, lambdas: Sequence[floa
             parent's length. Whatever ``positions``, the results' ``aligned`` holds bifurcation parameters, so it
             decodes and :func:`~torch4dtree.trees.geodesic` works; only with ``"warped"`` is ``distance`` the
             layout's (and the geodesic's) length.
-        order_tol: ``None`` (default): each node's side subtrees are matched in any order. A number (e.g.
-            ``settings.ORDER_TOL``): matched children keep their order along the parent, except siblings within
-            ``order_tol`` of each other (one node), which may match in any order (frames of one growing plant,
-            whose organs never pass each other; :func:`.matching.ordered_assignment`).
+        order_tol: ``None`` (default, the metric's own matching): each node's side subtrees are matched in any
+            order. A number (e.g. ``settings.ORDER_TOL``): matched children keep their order along the parent,
+            except siblings within ``order_tol`` of each other (one node), which may match in any order (frames of
+            one growing plant, whose organs never pass each other; :func:`.matching.ordered_assignment`).
         symmetric: the answer does not depend on which tree is the reference: each pair is solved in one canonical
             direction (:mod:`.symmetry`) and the other direction is its inverse, so ``A -> B -> A`` returns every
             point to where it started. ``False``: solve the given direction (one-way uses: chaining a sequence,
