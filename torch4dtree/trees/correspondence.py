@@ -60,11 +60,9 @@ def map_points(registration: TreeRegistration, branch: Tensor, t: Tensor) -> tup
         >>> import torch
         >>> from torch4dtree.trees import Trees
         >>> t = torch.linspace(0, 1, 8, dtype=torch.float64)[:, None]
-        >>> stem = torch.cat([0 * t, 0 * t, t], dim=1)
-        >>> leaf = torch.cat([t, 0 * t, 0.5 + 0 * t], dim=1)  # leaves the stem at its middle
-        >>> tree = Trees.from_branches([[stem, leaf]], [[-1, 0]], T=8, dtype=torch.float64)
-        >>> bent = torch.cat([t, 0.3 * t ** 2, 0.6 + 0 * t], dim=1)
-        >>> other = Trees.from_branches([[stem, bent]], [[-1, 0]], T=8, dtype=torch.float64)
+        >>> stem, leaf, bent = (torch.cat(xyz, dim=1) for xyz in ((0 * t, 0 * t, t), (t, 0 * t, 0.5 + 0 * t),
+        ...                                                       (t, 0.3 * t ** 2, 0.6 + 0 * t)))
+        >>> tree, other = (Trees.from_branches([[stem, b]], [[-1, 0]], T=8, dtype=torch.float64) for b in (leaf, bent))
         >>> branch, t_image = map_points(register_trees(other, tree), torch.tensor([1]), torch.tensor([0.5]).double())
         >>> branch.tolist(), t_image.tolist()
         ([1], [0.5])
@@ -170,11 +168,9 @@ def cycle_consistency(a: Trees, b: Trees, eps: Sequence[float] = DEFAULT_EPS,
         >>> import torch
         >>> from torch4dtree.trees import Trees
         >>> t = torch.linspace(0, 1, 8, dtype=torch.float64)[:, None]
-        >>> stem = torch.cat([0 * t, 0 * t, t], dim=1)
-        >>> leaf = torch.cat([t, 0 * t, 0.5 + 0 * t], dim=1)  # leaves the stem at its middle
-        >>> tree = Trees.from_branches([[stem, leaf]], [[-1, 0]], T=8, dtype=torch.float64)
-        >>> bent = torch.cat([t, 0.3 * t ** 2, 0.6 + 0 * t], dim=1)
-        >>> other = Trees.from_branches([[stem, bent]], [[-1, 0]], T=8, dtype=torch.float64)
+        >>> stem, leaf, bent = (torch.cat(xyz, dim=1) for xyz in ((0 * t, 0 * t, t), (t, 0 * t, 0.5 + 0 * t),
+        ...                                                       (t, 0.3 * t ** 2, 0.6 + 0 * t)))
+        >>> tree, other = (Trees.from_branches([[stem, b]], [[-1, 0]], T=8, dtype=torch.float64) for b in (leaf, bent))
         >>> cc = cycle_consistency(other, tree)
         >>> cc.eps, cc.error.tolist(), cc.unmatched
         ((0.1, 0.05, 0.02, 0.01), [0.0, 0.0, 0.0, 0.0], 0.0)

@@ -45,11 +45,9 @@ def geodesic(registration: TreeRegistration | AlignedTrees, n_steps: int = 5, ep
         >>> import torch
         >>> from torch4dtree.trees import Trees, register_trees
         >>> t = torch.linspace(0, 1, 8, dtype=torch.float64)[:, None]
-        >>> stem = torch.cat([0 * t, 0 * t, t], dim=1)
-        >>> leaf = torch.cat([t, 0 * t, 0.5 + 0 * t], dim=1)  # leaves the stem at its middle
-        >>> tree = Trees.from_branches([[stem, leaf]], [[-1, 0]], T=8, dtype=torch.float64)
-        >>> bent = torch.cat([t, 0.3 * t ** 2, 0.6 + 0 * t], dim=1)
-        >>> other = Trees.from_branches([[stem, bent]], [[-1, 0]], T=8, dtype=torch.float64)
+        >>> stem, leaf, bent = (torch.cat(xyz, dim=1) for xyz in ((0 * t, 0 * t, t), (t, 0 * t, 0.5 + 0 * t),
+        ...                                                       (t, 0.3 * t ** 2, 0.6 + 0 * t)))
+        >>> tree, other = (Trees.from_branches([[stem, b]], [[-1, 0]], T=8, dtype=torch.float64) for b in (leaf, bent))
         >>> path = geodesic(register_trees(other, tree), n_steps=3)  # other, the midpoint, tree
         >>> path.num_trees, path.num_branches.tolist()
         (3, [2, 2, 2])

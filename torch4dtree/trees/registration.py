@@ -383,11 +383,9 @@ def register_trees(moving: Trees, reference: Trees, lambdas: Sequence[float] = (
     Example:
         >>> import torch
         >>> t = torch.linspace(0, 1, 8, dtype=torch.float64)[:, None]
-        >>> stem = torch.cat([0 * t, 0 * t, t], dim=1)
-        >>> leaf = torch.cat([t, 0 * t, 0.5 + 0 * t], dim=1)  # leaves the stem at its middle
-        >>> tree = Trees.from_branches([[stem, leaf]], [[-1, 0]], T=8, dtype=torch.float64)
-        >>> bent = torch.cat([t, 0.3 * t ** 2, 0.6 + 0 * t], dim=1)
-        >>> other = Trees.from_branches([[stem, bent]], [[-1, 0]], T=8, dtype=torch.float64)
+        >>> stem, leaf, bent = (torch.cat(xyz, dim=1) for xyz in ((0 * t, 0 * t, t), (t, 0 * t, 0.5 + 0 * t),
+        ...                                                       (t, 0.3 * t ** 2, 0.6 + 0 * t)))
+        >>> tree, other = (Trees.from_branches([[stem, b]], [[-1, 0]], T=8, dtype=torch.float64) for b in (leaf, bent))
         >>> r = register_trees(other, tree)
         >>> r.matches, r.unmatched_moving, round(float(register_trees(tree, tree).distance), 6)
         ([(0, 0), (1, 1)], [], 0.0)
