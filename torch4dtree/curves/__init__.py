@@ -2,8 +2,9 @@
 
 * :mod:`.srvf` polylines, SRVFs, arc-length resampling; :mod:`.warps` warp utilities; :mod:`.rotation`
   closed-form rotations;
-* :mod:`.dp_numba` / :mod:`.dp_torch` the two DP backends (numba kernels on the CPU, a vectorised torch
-  twin for any device); :mod:`.refinement` the off-lattice Gauss-Newton warp refinement;
+* :mod:`.dp_numba` / :mod:`.dp_torch` the two DP backends (numba kernels on the CPU, :mod:`.kernels_numba`,
+  driven by :mod:`.dp_numba`; a vectorised torch twin for any device); :mod:`.refinement` the off-lattice
+  Gauss-Newton warp refinement;
 * :mod:`.register` the public ``dp_warp`` / ``register_curves`` / ``elastic_distance``.
 """
 

@@ -9,6 +9,9 @@ from torch import Tensor
 from .srvf import inverse_srvf, uniform_grid
 from .warps import neighbourhood_steps
 
+# floor under a segment's speed before its square root: a degenerate segment gives 0 (by the where), never nan
+MIN_SPEED = 1e-300
+
 
 def _shift_right(x: Tensor, b: int, fill: Tensor) -> Tensor:
     """``y[:, j] = x[:, j - b]`` (``fill`` where ``j < b``). ``(B, n) -> (B, n)``."""
@@ -18,7 +21,7 @@ def _shift_right(x: Tensor, b: int, fill: Tensor) -> Tensor:
     return torch.cat([fill.expand(x.shape[0], b), x[:, : n - b]], 1)
 
 
-def _dp_torch(q1: Tensor, q2: Tensor, n: int, lo: np.ndarray, hi: np.ndarray) -> tuple[Tensor, Tensor]:
+def banded_dp_torch(q1: Tensor, q2: Tensor, n: int, lo: np.ndarray, hi: np.ndarray) -> tuple[Tensor, Tensor]:
     """The same DP, vectorised over pairs, columns and steps; loops over lattice rows only."""
     B, M, d = q1.shape
     dev, dt = q1.device, q1.dtype
@@ -51,7 +54,7 @@ def _dp_torch(q1: Tensor, q2: Tensor, n: int, lo: np.ndarray, hi: np.ndarray) ->
             P = P0 + fr * (P1 - P0)
             v = torch.diff(P, dim=1) * M  # (B, a, L, d)
             nv = v.norm(dim=-1)
-            qw = torch.where(nv.unsqueeze(-1) > 0, v / nv.clamp_min(1e-300).sqrt().unsqueeze(-1), 0)
+            qw = torch.where(nv.unsqueeze(-1) > 0, v / nv.clamp_min(MIN_SPEED).sqrt().unsqueeze(-1), 0)
             qw = qw * (2.0 / M)
             qwd = torch.zeros(B, a, d, M + 1, dtype=dt, device=dev)
             qwd[..., b:] = qw.permute(0, 1, 3, 2)

@@ -25,14 +25,18 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from .dp_numba import HAVE_NUMBA, _dp_numba, run_pairs, warp_energies_numba
-from .dp_torch import _dp_torch
+from .dp_numba import HAVE_NUMBA, banded_dp_numba, run_pairs, warp_energies_numba
+from .dp_torch import banded_dp_torch
 from .refinement import gauss_newton_torch
 from .rotation import axis_rotation, check_rotation_mode, optimal_rotation
 from .srvf import interpolate_curve, inverse_srvf, srvf, srvf_sq_distance, uniform_grid, warp_curve, warp_srvf
-from .warps import _band_around, _reachable_band, _step_arrays, identity_warp, warp_energy
+from .warps import band_around, identity_warp, reachable_band, step_arrays, warp_energy
 
-__all__ = ["CurveRegistration", "DPWarp", "dp_warp", "elastic_distance", "register_curves", "warp_energies"]
+__all__ = ["CurveRegistration", "DPSettings", "DPWarp", "dp_settings", "dp_warp", "elastic_distance", "pick_backend",
+           "register_curves", "register_numba", "warp_energies"]
+
+# floor under an energy before its square root: the gradient stays finite where the energy is 0 (0 is returned)
+MIN_ENERGY = 1e-300
 
 
 # ----------------------------------------------------------------------------- DP driver
@@ -90,7 +94,9 @@ def _resample_curve(beta: Tensor, T: int) -> Tensor:
     return interpolate_curve(beta, uniform_grid(T, beta).expand(*beta.shape[:-2], T))
 
 
-def _pick_backend(backend: str, x: Tensor) -> str:
+def pick_backend(backend: str, x: Tensor) -> str:
+    """``"numba"`` or ``"torch"`` for ``backend`` in ``("auto", "numba", "torch")``: ``"auto"`` takes numba for CPU
+    tensors ``x`` when it is installed (the faster kernel), torch otherwise (any device)."""
     if backend not in ("auto", "numba", "torch"):
         raise ValueError(f"unknown backend {backend!r}; expected 'auto', 'numba' or 'torch'")
     if backend == "auto":
@@ -104,9 +110,9 @@ def _run_dp(q1: Tensor, q2: Tensor, n: int, lo: np.ndarray, hi: np.ndarray,
             backend: str) -> tuple[Tensor, Tensor]:
     """One DP over the lattice restricted to columns ``[lo, hi] (B, M+1)`` per row. ``-> energy, gamma``."""
     if backend == "numba":
-        energy, gamma = _dp_numba(q1, q2, n, lo, hi)
+        energy, gamma = banded_dp_numba(q1, q2, n, lo, hi)
         return energy.to(q1.device, q1.dtype), gamma.to(q1.device, q1.dtype)
-    return _dp_torch(q1, q2, n, lo, hi)
+    return banded_dp_torch(q1, q2, n, lo, hi)
 
 
 def _dp_search(q1: Tensor, q2: Tensor, n: int, band: int | None, init: Tensor | None,
@@ -114,10 +120,10 @@ def _dp_search(q1: Tensor, q2: Tensor, n: int, band: int | None, init: Tensor | 
     """Full DP (``band=None`` or no ``init``) or DP in a band around ``init (B, M+1)``. ``-> gamma, E``."""
     B, M, _ = q1.shape
     if band is None or init is None:
-        lo, hi = _reachable_band(M, n)
+        lo, hi = reachable_band(M, n)
         lo, hi = np.tile(lo, (B, 1)), np.tile(hi, (B, 1))
     else:
-        lo, hi = _band_around(init, M, n, band)
+        lo, hi = band_around(init, M, n, band)
     energy, gamma = _run_dp(q1, q2, n, lo, hi, backend)
     return gamma, energy
 
@@ -132,7 +138,7 @@ def _grid_sizes(M: int, band: int | None, coarse: int | None) -> list[int]:
     return sizes
 
 
-class _Settings(NamedTuple):
+class DPSettings(NamedTuple):
     """Search settings shared by both backends (see :func:`register_curves`)."""
 
     neighbourhood: int
@@ -211,7 +217,10 @@ def _alternate_torch(q1: Tensor, q2: Tensor, n: int, band: int | None, rotation:
 
 
 def _register_torch(q1: Tensor, q2: Tensor, rotation: str, up: Tensor,
-                    cfg: _Settings) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+                   cfg: DPSettings) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """The numba registration of pairs ``q1, q2 (B, M, d)`` (reference, moving SRVFs) with settings ``cfg``
+    (:func:`dp_settings`) and ``rotation`` about ``up (3,)``: ``(energy (B,), energy_before (B,), gamma (B, M+1),
+    O (B, d, d))`` (see :func:`register_curves`)."""
     """Batched torch twin of ``_nb_register_one``. ``-> energy, energy_before, gamma, O``."""
     B, M, d = q1.shape
     ident = identity_warp(B, M + 1, q1)
@@ -248,18 +257,21 @@ def _register_torch(q1: Tensor, q2: Tensor, rotation: str, up: Tensor,
     return energy, before, gamma, O
 
 
-def _kernel_settings(cfg: _Settings, rotation: str) -> tuple[tuple[np.ndarray, ...], np.ndarray]:
+def _kernel_settings(cfg: DPSettings, rotation: str) -> tuple[tuple[np.ndarray, ...], np.ndarray]:
     """The numba entry kernel's lattice steps ``(A, Bs, Af, Bf)`` and integer settings for ``cfg``."""
-    A, Bs = _step_arrays(cfg.neighbourhood)
-    Af, Bf = _step_arrays(cfg.band_neighbourhood)
+    A, Bs = step_arrays(cfg.neighbourhood)
+    Af, Bf = step_arrays(cfg.band_neighbourhood)
     ints = np.array([cfg.neighbourhood, -1 if cfg.band is None else cfg.band,
                      1 << 30 if cfg.coarse is None else cfg.coarse, _MODES[rotation], cfg.max_iters,
                      cfg.refine, cfg.starts, cfg.band_neighbourhood, cfg.fine_iters], np.int64)
     return (A, Bs, Af, Bf), ints
 
 
-def _register_numba(q1: Tensor, q2: Tensor, rotation: str, up: Tensor,
-                    cfg: _Settings) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+def register_numba(q1: Tensor, q2: Tensor, rotation: str, up: Tensor,
+                   cfg: DPSettings) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """The numba registration of pairs ``q1, q2 (B, M, d)`` (reference, moving SRVFs) with settings ``cfg``
+    (:func:`dp_settings`) and ``rotation`` about ``up (3,)``: ``(energy (B,), energy_before (B,), gamma (B, M+1),
+    O (B, d, d))`` (see :func:`register_curves`)."""
     steps, ints = _kernel_settings(cfg, rotation)
     q1n = q1.detach().to("cpu", torch.float64).contiguous().numpy()
     q2n = q2.detach().to("cpu", torch.float64).contiguous().numpy()
@@ -269,7 +281,7 @@ def _register_numba(q1: Tensor, q2: Tensor, rotation: str, up: Tensor,
 
 
 def _register_curves_numba(moving: Tensor, reference: Tensor, srvf_input: bool, rotation: str, up: Tensor,
-                           cfg: _Settings) -> CurveRegistration:
+                           cfg: DPSettings) -> CurveRegistration:
     """``register_curves`` without gradients in one numba call (input prep and outputs included)."""
     steps, ints = _kernel_settings(cfg, rotation)
     mov = moving.detach().to("cpu", torch.float64).contiguous().numpy()
@@ -309,8 +321,10 @@ def _check_inputs(moving: Tensor, reference: Tensor, min_points: int,
     return moving, reference.to(moving.dtype), single
 
 
-def _settings(neighbourhood: int, band: int | None, coarse: int | None, band_neighbourhood: int | None,
-              max_iters: int, fine_iters: int, tol: float, refine: int, starts: int) -> _Settings:
+def dp_settings(neighbourhood: int, band: int | None, coarse: int | None, band_neighbourhood: int | None,
+              max_iters: int, fine_iters: int, tol: float, refine: int, starts: int) -> DPSettings:
+    """Checked :class:`DPSettings` (``ValueError`` on a bad value); ``band_neighbourhood=None`` takes
+    ``neighbourhood``."""
     for name, v, low in (("neighbourhood", neighbourhood, 1), ("max_iters", max_iters, 1),
                          ("fine_iters", fine_iters, 1), ("refine", refine, 0), ("starts", starts, 1)):
         if not isinstance(v, int) or v < low:
@@ -322,7 +336,7 @@ def _settings(neighbourhood: int, band: int | None, coarse: int | None, band_nei
     nf = neighbourhood if band_neighbourhood is None else band_neighbourhood
     if not isinstance(nf, int) or nf < 1:
         raise ValueError(f"band_neighbourhood must be None or an integer >= 1, got {band_neighbourhood!r}")
-    return _Settings(neighbourhood, band, coarse, nf, max_iters, fine_iters, float(tol), refine, starts)
+    return DPSettings(neighbourhood, band, coarse, nf, max_iters, fine_iters, float(tol), refine, starts)
 
 
 def dp_warp(q1: Tensor, q2: Tensor, neighbourhood: int = 6, band: int | None = 4, coarse: int | None = 16,
@@ -337,8 +351,8 @@ def dp_warp(q1: Tensor, q2: Tensor, neighbourhood: int = 6, band: int | None = 4
             until at most ``coarse``), then on the fine grid only within ``band`` cells of the coarse
             warp. ``None``: one DP over the whole lattice (its exact optimum over all lattice warps).
         band_neighbourhood: steps of the banded (finer) DPs (``None``: ``neighbourhood``). The
-            defaults (6 on the coarse grid, 5 in a band of 4 cells) are a speed / accuracy trade-off
-            measured in benchmarks/README.md; ``band=None`` gives the exact lattice optimum.
+            defaults (6 on the coarse grid, 5 in a band of 4 cells) trade a little accuracy for speed
+            (docs/experiments.md); ``band=None`` gives the exact lattice optimum.
         refine: iterations of a damped Gauss-Newton refinement that moves the warp's nodes off the
             lattice (0 = pure DP; ``torch4dtree.curves.refinement``); it only accepts steps that lower
             the energy and keeps the warp strictly monotone.
@@ -347,13 +361,25 @@ def dp_warp(q1: Tensor, q2: Tensor, neighbourhood: int = 6, band: int | None = 4
     Returns:
         ``DPWarp(gamma (B, M+1), energy (B,))`` with ``energy = ||q1 - warp_srvf(q2, gamma)||^2``,
         never above the identity warp's energy.
+
+    Example:
+        >>> import torch
+        >>> from torch4dtree.curves import random_warp
+        >>> s = torch.linspace(0, 1, 16, dtype=torch.float64)
+        >>> x = torch.stack([torch.cos(2 * s), torch.sin(2 * s), s], dim=1)  # a helix arc
+        >>> gamma = random_warp(1, 16, generator=torch.Generator().manual_seed(0), strength=0.5)[0]
+        >>> y = warp_curve(x, gamma)  # the same curve, reparameterised
+        >>> res = dp_warp(srvf(x), srvf(y))
+        >>> before = warp_energy(srvf(x)[None], srvf(y)[None], identity_warp(1, 16))[0]  # the identity warp's
+        >>> res.gamma.shape, bool(res.energy < before)
+        (torch.Size([16]), True)
     """
     q2, q1, single = _check_inputs(q2, q1, 1, "SRVFs")
-    cfg = _settings(neighbourhood, band, coarse, band_neighbourhood, 1, 1, 0.0, refine, 1)
+    cfg = dp_settings(neighbourhood, band, coarse, band_neighbourhood, 1, 1, 0.0, refine, 1)
     q2 = _resample_srvf(q2, q1.shape[1])
-    be = _pick_backend(backend, q1)
+    be = pick_backend(backend, q1)
     up = torch.tensor([0.0, 0.0, 1.0], dtype=q1.dtype, device=q1.device)
-    fn = _register_numba if be == "numba" else _register_torch
+    fn = register_numba if be == "numba" else _register_torch
     with torch.no_grad():
         energy, _, gamma, _ = fn(q1.detach(), q2.detach(), "none", up, cfg)
     if single:
@@ -378,23 +404,33 @@ def register_curves(moving: Tensor, reference: Tensor, rotation: str = "none", s
         neighbourhood, band, coarse, band_neighbourhood, refine, backend: DP settings, see :func:`dp_warp`.
             The defaults here (slopes up to 3 on the coarsest grid, where the rotation / warp alternation
             runs, and up to 4 in the bands of the finer grids) are faster than :func:`dp_warp`'s 6 / 5 and
-            about as good: 1.75x less CPU, mean energies -7 % to +12 % (mostly within +-3 %) on random,
-            helix and Pheno4D pairs at T = 50, 100, 200 (benchmarks/README.md). Steep slopes on the coarse
-            grid let the alternation settle on degenerate warps; the finer grids and the refinement then
-            recover fine detail. With ``band=None`` (one grid) ``neighbourhood`` is the only lattice:
-            raise it for strongly non-uniform warps.
+            about as good (docs/experiments.md). Steep slopes on the coarse grid let the alternation settle
+            on degenerate warps; the finer grids and the refinement then recover fine detail. With
+            ``band=None`` (one grid) ``neighbourhood`` is the only lattice: raise it for strongly non-uniform
+            warps.
         up: the vertical axis for ``rotation="vertical"``.
         max_iters: rounds of (DP warp, optimal rotation) on the coarsest grid (with a rotation, that
             grid has at least ``4 d`` segments); ``fine_iters`` on finer
             grids. Rounds stop early when the energy decreases by less than ``tol`` relatively.
         starts: initial rotations tried on the coarsest grid (the Kabsch rotation at the identity warp,
             the identity, then that Kabsch rotation turned by half-turns about the axes (so3) or by
-            turns about ``up`` (vertical)); the best is kept. Default 5 with a rotation (one start
-            gets stuck in a wrong basin now and then, e.g. 180 degrees off), 1 without.
+            turns about ``up`` (vertical)); the best is kept. Default 5 with a rotation (a single start
+            can get stuck in a wrong basin, e.g. 180 degrees off), 1 without.
 
     Returns:
         :class:`CurveRegistration`. Warps and rotations are found without gradients; ``distance``,
         ``registered`` and ``q_registered`` are differentiable in the inputs given them.
+
+    Example:
+        >>> import torch
+        >>> from torch4dtree.curves import random_warp
+        >>> s = torch.linspace(0, 1, 16, dtype=torch.float64)
+        >>> x = torch.stack([torch.cos(2 * s), torch.sin(2 * s), s], dim=1)  # a helix arc
+        >>> gamma = random_warp(1, 16, generator=torch.Generator().manual_seed(0), strength=0.5)[0]
+        >>> y = warp_curve(x, gamma)  # the same curve, reparameterised
+        >>> r = register_curves(y, x)
+        >>> r.gamma.shape, bool(r.energy < 0.01 * r.energy_before)
+        (torch.Size([16]), True)
     """
     if srvf_input:
         moving, reference, single = _check_inputs(moving, reference, 1, "SRVFs")
@@ -406,12 +442,12 @@ def register_curves(moving: Tensor, reference: Tensor, rotation: str = "none", s
     if coarse is not None and rotation != "none":
         # a rotation of R^d is poorly determined by a very coarse curve in high dimension
         coarse = max(coarse, 4 * moving.shape[-1])
-    cfg = _settings(neighbourhood, band, coarse, band_neighbourhood, max_iters, fine_iters, tol, refine,
+    cfg = dp_settings(neighbourhood, band, coarse, band_neighbourhood, max_iters, fine_iters, tol, refine,
                     starts)
     up_t = torch.as_tensor((0.0, 0.0, 1.0) if up is None else up, dtype=reference.dtype, device=reference.device)
     if up_t.shape != (3,) or not bool(up_t.norm() > 0):
         raise ValueError(f"up must be a nonzero 3-vector, got {up}")
-    be = _pick_backend(backend, reference)
+    be = pick_backend(backend, reference)
     if be == "numba" and not (torch.is_grad_enabled() and (moving.requires_grad or reference.requires_grad)):
         # no gradient wanted: the whole registration (input prep and outputs too) in one numba call
         out = _register_curves_numba(moving, reference, srvf_input, rotation, up_t, cfg)
@@ -420,14 +456,14 @@ def register_curves(moving: Tensor, reference: Tensor, rotation: str = "none", s
     T = beta_r.shape[1]
     beta_m = _resample_curve(beta_m, T)
     q_ref, q_mov = srvf(beta_r), srvf(beta_m)
-    fn = _register_numba if be == "numba" else _register_torch
+    fn = register_numba if be == "numba" else _register_torch
     with torch.no_grad():
         _, before, gamma, O = fn(q_ref.detach(), q_mov.detach(), rotation, up_t, cfg)
     registered = warp_curve(beta_m, gamma) @ O.transpose(-1, -2)
     registered = registered - registered[:, :1] + beta_r[:, :1]
     q_reg = srvf(registered)
     energy = srvf_sq_distance(q_ref, q_reg)
-    distance = torch.where(energy > 0, energy.clamp_min(1e-300).sqrt(), torch.zeros_like(energy))
+    distance = torch.where(energy > 0, energy.clamp_min(MIN_ENERGY).sqrt(), torch.zeros_like(energy))
     out = CurveRegistration(gamma, O, distance, energy, before.to(energy.dtype), registered, q_reg)
     if single:
         out = CurveRegistration(*(x[0] for x in out))
@@ -435,6 +471,17 @@ def register_curves(moving: Tensor, reference: Tensor, rotation: str = "none", s
 
 
 def elastic_distance(moving: Tensor, reference: Tensor, **kwargs: object) -> Tensor:
-    """Elastic distance ``(B,)`` (or a scalar for one pair): ``register_curves(...).distance``."""
+    """Elastic distance ``(B,)`` (or a scalar for one pair): ``register_curves(...).distance``.
+
+    Example:
+        >>> import torch
+        >>> from torch4dtree.curves import random_warp
+        >>> s = torch.linspace(0, 1, 16, dtype=torch.float64)
+        >>> x = torch.stack([torch.cos(2 * s), torch.sin(2 * s), s], dim=1)  # a helix arc
+        >>> gamma = random_warp(1, 16, generator=torch.Generator().manual_seed(0), strength=0.5)[0]
+        >>> y = warp_curve(x, gamma)  # the same curve, reparameterised
+        >>> float(elastic_distance(x, x)) < 1e-6, float(elastic_distance(y, x)) < 0.1
+        (True, True)
+    """
     return register_curves(moving, reference, **kwargs).distance  # type: ignore[arg-type]
 

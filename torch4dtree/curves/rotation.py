@@ -9,13 +9,21 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-ROTATIONS = ("none", "vertical", "so3")
+from ..settings import ROTATIONS, check_choice
 
 
 def check_rotation_mode(rotation: str, d: int) -> None:
-    """Raise a clear ValueError for an unknown mode or a mode that does not fit dimension ``d``."""
-    if rotation not in ROTATIONS:
-        raise ValueError(f"unknown rotation {rotation!r}; expected one of {ROTATIONS}")
+    """Raise a ``ValueError`` (:class:`~torch4dtree.trees.TreeError`) for a mode not in ``settings.ROTATIONS`` or
+    one that does not fit dimension ``d`` (``"vertical"`` needs 3D).
+
+    Example:
+        >>> check_rotation_mode("so3", 2)
+        >>> check_rotation_mode("vertical", 2)
+        Traceback (most recent call last):
+        ...
+        ValueError: rotation='vertical' needs 3D curves, got d=2
+    """
+    check_choice("rotation", rotation, ROTATIONS)
     if rotation == "vertical" and d != 3:
         raise ValueError(f"rotation='vertical' needs 3D curves, got d={d}")
 

@@ -8,7 +8,7 @@ Discretisation (used everywhere in the package):
   ``q_k = v_k / sqrt(|v_k|)`` with ``v_k = (beta_{k+1} - beta_k) (T - 1)``.
 * The L2 inner product of SRVFs is ``<q1, q2> = sum_k q1_k . q2_k / (T - 1)``.
 
-With these choices the relations of SPEC §3 hold exactly, not only up to quadrature error:
+With these choices the relations of docs/method.md §3 hold exactly, not only up to quadrature error:
 ``||q||^2`` is the polyline length and ``inverse_srvf(srvf(beta), beta[..., 0, :]) == beta``.
 A warp ``gamma`` is a monotone map of ``[0, 1]`` given by its values on the ``T`` grid points,
 shape ``(..., T)``; it acts on a curve by resampling ``beta(gamma(s_k))`` (linear
@@ -29,7 +29,16 @@ def _safe_sq_norm(v: Tensor) -> tuple[Tensor, Tensor]:
 
 
 def srvf(beta: Tensor) -> Tensor:
-    """SRVF of polylines. ``beta (..., T, d) -> q (..., T-1, d)``; ``q = 0`` where the speed is 0."""
+    """SRVF of polylines. ``beta (..., T, d) -> q (..., T-1, d)``; ``q = 0`` where the speed is 0.
+
+    Example:
+        >>> import torch
+        >>> t = torch.linspace(0, 1, 5, dtype=torch.float64)[:, None]
+        >>> line = torch.cat([3 * t, 4 * t, 0 * t], dim=1)  # a straight segment of length 5
+        >>> q = srvf(line)
+        >>> q.shape, float(srvf_sq_norm(q))  # M = T - 1 segments; ||q||^2 is the length
+        (torch.Size([4, 3]), 5.0)
+    """
     if beta.shape[-2] < 2:
         raise ValueError(f"a curve needs at least 2 points, got shape {tuple(beta.shape)}")
     v = torch.diff(beta, dim=-2) * (beta.shape[-2] - 1)
@@ -38,7 +47,15 @@ def srvf(beta: Tensor) -> Tensor:
 
 
 def inverse_srvf(q: Tensor, start: Tensor | None = None) -> Tensor:
-    """Curve from its SRVF. ``q (..., M, d)``, ``start (..., d)`` or None (origin) ``-> (..., M+1, d)``."""
+    """Curve from its SRVF. ``q (..., M, d)``, ``start (..., d)`` or None (origin) ``-> (..., M+1, d)``.
+
+    Example:
+        >>> import torch
+        >>> t = torch.linspace(0, 1, 5, dtype=torch.float64)[:, None]
+        >>> line = torch.cat([3 * t, 4 * t, 0 * t], dim=1)  # a straight segment of length 5
+        >>> inverse_srvf(srvf(line))[-1]
+        tensor([3., 4., 0.], dtype=torch.float64)
+    """
     sq, nonzero = _safe_sq_norm(q)
     speed = torch.where(nonzero, sq.sqrt(), torch.zeros_like(sq))
     steps = q * speed.unsqueeze(-1) / q.shape[-2]
@@ -48,7 +65,15 @@ def inverse_srvf(q: Tensor, start: Tensor | None = None) -> Tensor:
 
 
 def curve_length(beta: Tensor) -> Tensor:
-    """Polyline length. ``(..., T, d) -> (...)``."""
+    """Polyline length. ``(..., T, d) -> (...)``.
+
+    Example:
+        >>> import torch
+        >>> t = torch.linspace(0, 1, 5, dtype=torch.float64)[:, None]
+        >>> line = torch.cat([3 * t, 4 * t, 0 * t], dim=1)  # a straight segment of length 5
+        >>> float(curve_length(line))
+        5.0
+    """
     sq, nonzero = _safe_sq_norm(torch.diff(beta, dim=-2))
     return torch.where(nonzero, sq.sqrt(), torch.zeros_like(sq)).sum(-1)
 
@@ -89,7 +114,16 @@ def interpolate_curve(beta: Tensor, s: Tensor) -> Tensor:
 
 
 def warp_curve(beta: Tensor, gamma: Tensor) -> Tensor:
-    """Reparameterise curves: ``beta (..., T, d)``, ``gamma (..., T) -> beta(gamma(s_k)) (..., T, d)``."""
+    """Reparameterise curves: ``beta (..., T, d)``, ``gamma (..., T) -> beta(gamma(s_k)) (..., T, d)``.
+
+    Example:
+        >>> import torch
+        >>> t = torch.linspace(0, 1, 5, dtype=torch.float64)[:, None]
+        >>> line = torch.cat([3 * t, 4 * t, 0 * t], dim=1)  # a straight segment of length 5
+        >>> gamma = torch.tensor([0.0, 0.1, 0.3, 0.6, 1.0], dtype=torch.float64)
+        >>> warp_curve(line, gamma)[:, 0]
+        tensor([0.0000, 0.3000, 0.9000, 1.8000, 3.0000], dtype=torch.float64)
+    """
     return interpolate_curve(beta, gamma)
 
 

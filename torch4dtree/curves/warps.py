@@ -11,6 +11,9 @@ from torch import Tensor
 
 from .srvf import interpolate_curve, srvf_sq_distance, uniform_grid, warp_srvf
 
+# a warp value within rounding of a grid line counts as on it when a band is cut to whole cells
+GRID_SNAP = 1e-9
+
 # ----------------------------------------------------------------------------- warp utilities
 
 
@@ -84,7 +87,7 @@ def neighbourhood_steps(n: int) -> tuple[tuple[int, int], ...]:
     return tuple(sorted(steps, key=lambda ab: (ab != (1, 1), max(ab), ab)))
 
 
-def _reachable_band(M: int, n: int) -> tuple[np.ndarray, np.ndarray]:
+def reachable_band(M: int, n: int) -> tuple[np.ndarray, np.ndarray]:
     """Columns ``[lo_i, hi_i]`` of lattice nodes on some path (0,0) -> (M,M) with slopes in [1/n, n]."""
     i = np.arange(M + 1)
     lo = np.maximum(-(-i // n), M - n * (M - i))
@@ -92,22 +95,22 @@ def _reachable_band(M: int, n: int) -> tuple[np.ndarray, np.ndarray]:
     return lo.astype(np.int64), hi.astype(np.int64)
 
 
-def _band_around(center: Tensor, M: int, n: int, width: int) -> tuple[np.ndarray, np.ndarray]:
+def band_around(center: Tensor, M: int, n: int, width: int) -> tuple[np.ndarray, np.ndarray]:
     """Band of half-width ``width`` (in rows and columns) around warps ``center (B, M+1)``.
 
     Row ``i`` gets columns ``[M gamma(s_{i-w}) - w, M gamma(s_{i+w}) + w]``, cut to the reachable set.
     """
     g = center.detach().to("cpu", torch.float64).numpy() * M
     idx = np.arange(M + 1)
-    lo = np.floor(g[:, np.clip(idx - width, 0, M)] + 1e-9) - width
-    hi = np.ceil(g[:, np.clip(idx + width, 0, M)] - 1e-9) + width
-    rlo, rhi = _reachable_band(M, n)
+    lo = np.floor(g[:, np.clip(idx - width, 0, M)] + GRID_SNAP) - width
+    hi = np.ceil(g[:, np.clip(idx + width, 0, M)] - GRID_SNAP) + width
+    rlo, rhi = reachable_band(M, n)
     lo = np.maximum(lo.astype(np.int64), rlo)
     hi = np.minimum(hi.astype(np.int64), rhi)
     return np.ascontiguousarray(lo), np.ascontiguousarray(np.maximum(hi, lo))
 
 
-def _step_arrays(n: int) -> tuple[np.ndarray, np.ndarray]:
+def step_arrays(n: int) -> tuple[np.ndarray, np.ndarray]:
     steps = neighbourhood_steps(n)
     return np.array([a for a, _ in steps], np.int64), np.array([b for _, b in steps], np.int64)
 

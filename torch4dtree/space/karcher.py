@@ -37,7 +37,7 @@ from torch import Tensor
 
 from ..curves.srvf import interpolate_curve, inverse_srvf, srvf, srvf_sq_norm
 from ..trees.aligned import AlignedTrees, Lambdas, slot_weights
-from ..trees.registration import RELATIVE_LP_SCALE, TreeRegistration, _check_lambdas, register_to_reference
+from ..trees.registration import RELATIVE_LP_SCALE, TreeRegistration, check_lambdas, register_to_reference
 from ..trees.structures import Trees
 from .fitted import FittedModule, NotFittedError
 
@@ -329,7 +329,7 @@ class KarcherMean(FittedModule):
                  init: str | int = "medoid", medoid_subsample: int = 8, progress: bool = True,
                  registration: Mapping[str, Any] | None = None, lp_relative: bool = True) -> None:
         super().__init__()
-        self.lambdas: Lambdas = _check_lambdas(lambdas)
+        self.lambdas: Lambdas = check_lambdas(lambdas)
         self.lp_relative = bool(lp_relative)
         if rotation not in ROTATIONS:
             raise ValueError(f"rotation must be one of {ROTATIONS}, got {rotation!r}")
@@ -370,7 +370,7 @@ class KarcherMean(FittedModule):
     def set_extra_state(self, state: dict[str, Any]) -> None:
         if not isinstance(state, dict) or state.get("version") != 1:
             raise ValueError("not a KarcherMean state (missing or unknown version)")
-        self.lambdas = _check_lambdas(state["lambdas"])
+        self.lambdas = check_lambdas(state["lambdas"])
         self.lp_relative = bool(state.get("lp_relative", False))
         self.rotation, self.max_iters, self.tol = state["rotation"], state["max_iters"], state["tol"]
         self.max_slots, self.prune_length, self.init = state["max_slots"], state["prune_length"], state["init"]

@@ -17,7 +17,7 @@ from torch import Tensor
 
 from ..curves.srvf import srvf_sq_norm
 from ..trees.aligned import AlignedTrees, Lambdas, SlotRows, rows_to_trees, slot_weights
-from ..trees.registration import _check_lambdas
+from ..trees.registration import check_lambdas
 from ..trees.structures import Trees
 from .fitted import FittedModule, NotFittedError
 
@@ -110,7 +110,7 @@ class TreePCA(FittedModule):
         if not isinstance(state, dict) or state.get("version") != 1:
             raise ValueError("not a TreePCA state (missing or unknown version)")
         self.n_components, self.variance = state["n_components"], state["variance"]
-        self.lambdas = _check_lambdas(state["lambdas"])
+        self.lambdas = check_lambdas(state["lambdas"])
         self.M, self.d, self.n_samples_ = state["M"], state["d"], state["n_samples"]
         self.total_variance_ = state["total_variance"]
 

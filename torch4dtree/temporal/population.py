@@ -44,7 +44,7 @@ from torch import Tensor
 from ..space.fitted import FittedModule, NotFittedError
 from ..space.pca import TreePCA
 from ..trees.aligned import AlignedTrees, slot_weights
-from ..trees.registration import RELATIVE_LP_SCALE, _check_lambdas, register_to_reference
+from ..trees.registration import RELATIVE_LP_SCALE, check_lambdas, register_to_reference
 from ..trees.structures import Trees, TreeSequence
 from .spatiotemporal import (
     CROSS_LP,
@@ -121,7 +121,7 @@ class Population(FittedModule):
             raise ValueError(f"n_t must be an integer >= 2, got {n_t!r}")
         if medoid_candidates < 1:
             raise ValueError(f"medoid_candidates must be at least 1, got {medoid_candidates}")
-        self.lambdas = _check_lambdas(lambdas)
+        self.lambdas = check_lambdas(lambdas)
         self.rotation, self.n_t, self.medoid_candidates = rotation, n_t, int(medoid_candidates)
         self.registration = dict(registration or {})
         self.positions, self.cross_lp = positions, None if cross_lp is None else float(cross_lp)
@@ -148,14 +148,14 @@ class Population(FittedModule):
     def set_extra_state(self, state: dict[str, Any]) -> None:
         if not isinstance(state, dict) or state.get("version") != 1:
             raise ValueError("not a Population state (missing or unknown version)")
-        self.lambdas, self.rotation, self.n_t = _check_lambdas(state["lambdas"]), state["rotation"], state["n_t"]
+        self.lambdas, self.rotation, self.n_t = check_lambdas(state["lambdas"]), state["rotation"], state["n_t"]
         self.medoid_candidates, self.registration = state["medoid_candidates"], dict(state["registration"])
-        self.lambdas_ = _check_lambdas(state["lambdas_"])
+        self.lambdas_ = check_lambdas(state["lambdas_"])
         # states saved before a setting existed were fitted with warped positions, the space's lp, any order
         self.positions, self.cross_lp = state.get("positions", "warped"), state.get("cross_lp")
         self.cross_order_tol = state.get("cross_order_tol")
         check_cross_settings(self.positions, self.cross_lp, self.cross_order_tol)
-        self.cross_lambdas_ = _check_lambdas(state.get("cross_lambdas_", state["lambdas_"]))
+        self.cross_lambdas_ = check_lambdas(state.get("cross_lambdas_", state["lambdas_"]))
         self.names_, self.report_ = list(state["names"]), dict(state["report"])
 
     @property

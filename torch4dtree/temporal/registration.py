@@ -21,7 +21,7 @@ import torch
 from torch import Tensor
 
 from ..curves.refinement import refine_on_finer
-from ..curves.register import _pick_backend, _register_numba, _settings, dp_warp
+from ..curves.register import dp_settings, dp_warp, pick_backend, register_numba
 from ..curves.srvf import interpolate_curve, inverse_srvf, srvf, srvf_sq_distance, uniform_grid
 
 __all__ = ["TemporalRegistration", "geodesic4d", "register_trajectories", "trajectory_distance", "time_warp_trajectory"]
@@ -147,12 +147,12 @@ def _search(ref: Tensor, fine: Tensor, factor: int, weight: Tensor | None, neigh
     if weight is not None:
         ref, fine = _with_time(ref, fine, weight)
     q_ref, q_mov = srvf(ref), srvf(fine[:, ::factor])
-    be = _pick_backend(backend, ref)
+    be = pick_backend(backend, ref)
     if be == "numba":
         # dp_warp's kernel call without its input checks (done by the caller): for one pair the Python and torch
         # overhead around the DP costs more than the DP
-        cfg = _settings(neighbourhood, band, coarse, BAND_NEIGHBOURHOOD, 1, 1, 0.0, refine, 1)  # as dp_warp's
-        warp = _register_numba(q_ref, q_mov, "none", _UP.to(ref.dtype), cfg)[2]
+        cfg = dp_settings(neighbourhood, band, coarse, BAND_NEIGHBOURHOOD, 1, 1, 0.0, refine, 1)  # as dp_warp's
+        warp = register_numba(q_ref, q_mov, "none", _UP.to(ref.dtype), cfg)[2]
     else:
         warp = dp_warp(q_ref, q_mov, neighbourhood=neighbourhood, band=band, coarse=coarse,
                        band_neighbourhood=BAND_NEIGHBOURHOOD, refine=refine, backend=backend).gamma.to(ref.dtype)

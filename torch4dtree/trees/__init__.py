@@ -1,6 +1,7 @@
 """Trees: ragged batches (`Trees`, `TreeSequence`), skeleton graphs to branch hierarchies, SRVF trees in a
 common slot layout (`AlignedTrees`), elastic registration of trees, geodesics and point correspondences."""
 
+from ..settings import DEFAULT_T
 from .aligned import AlignedTrees, Lambdas
 from .correspondence import CycleConsistency, cycle_consistency, map_points
 from .geodesic import geodesic
@@ -11,7 +12,7 @@ from .registration import (
     register_to_reference,
     register_trees,
 )
-from .structures import DEFAULT_T, TreeError, Trees, TreeSequence
+from .structures import TreeError, Trees, TreeSequence
 
 __all__ = [
     "DEFAULT_T", "AlignedTrees", "CycleConsistency", "Lambdas", "TreeError", "TreeRegistration", "TreeSequence",

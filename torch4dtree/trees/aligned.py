@@ -3,7 +3,7 @@
 Registration writes trees into one **layout**: a template tree of ``S`` slots (``slot_parent``,
 ``slot_depth``; slot 0 is the main branch, parents come before children). Every tree of the batch
 has one SRVF per slot, a null branch (``q = 0``) where it has nothing. In that layout the metric of
-SPEC §3,
+docs/method.md §3,
 
     d^2(Q, Q') = lm ||q0 - q0'||^2 + sum_i [ lp (s_i - s_i')^2 + ls d^2(Q_i, Q_i') ]   (recursively),
 
@@ -69,7 +69,23 @@ class AlignedTrees:
         slot_parent: ``(S,)`` long, parent slot (``-1`` for slot 0); parents come first.
         slot_depth: ``(S,)`` long, layer of each slot (0 = main branch).
         source: ``(n, S)`` long, index of the original branch (within its tree) or ``-1``.
-        lambdas: ``(lm, ls, lp)`` metric weights (SPEC §3 order).
+        lambdas: ``(lm, ls, lp)`` metric weights (docs/method.md §3 order).
+
+    Example:
+        >>> import torch
+        >>> from torch4dtree.trees import Trees, register_trees
+        >>> t = torch.linspace(0, 1, 8, dtype=torch.float64)[:, None]
+        >>> stem, leaf, bent = (torch.cat(xyz, dim=1) for xyz in ((0 * t, 0 * t, t), (t, 0 * t, 0.5 + 0 * t),
+        ...                                                       (t, 0.3 * t ** 2, 0.6 + 0 * t)))
+        >>> tree, other = (Trees.from_branches([[stem, b]], [[-1, 0]], T=8, dtype=torch.float64) for b in (leaf, bent))
+        >>> layout = register_trees(other, tree, positions="warped").aligned  # [registered other, tree] in one layout
+        >>> layout.q.shape, layout.slot_parent.tolist()
+        (torch.Size([2, 2, 7, 3]), [-1, 0])
+        >>> f = layout.features()  # the metric is the Euclidean one on the features
+        >>> bool(torch.isclose((f[0] - f[1]).norm(), register_trees(other, tree, positions="warped").distance))
+        True
+        >>> AlignedTrees.from_trees(tree).to_trees().num_branches
+        tensor([2])
     """
 
     q: Tensor

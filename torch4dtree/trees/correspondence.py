@@ -1,4 +1,4 @@
-"""Point and branch correspondences from tree registrations; cycle consistency (SPEC §7, paper Table 2).
+"""Point and branch correspondences from tree registrations; cycle consistency (docs/method.md §7, paper Table 2).
 
 A registration of ``A`` (moving) onto ``B`` maps the point at parameter ``t`` of branch ``a`` to the
 point at ``gamma_a^{-1}(t)`` of its matched branch ``b``: the registered branch is
@@ -15,9 +15,9 @@ How points without a full cycle count:
 * points whose image lies on a branch of ``B`` matched to null by ``B -> A`` started a cycle that
   did not return: they count as failures in ``error`` and are also reported as ``lost``.
 
-``error_null_at_base`` follows the paper's model of a null branch instead (SPEC §3: a branch matched to null is
-matched to a zero-length branch at its bifurcation point on the other tree): a point on a branch without an image
-goes where its branch's null partner sits, the image of the point where the branch leaves its parent (up the
+``error_null_at_base`` follows the paper's model of a null branch instead (docs/method.md §3: a branch matched to
+null is matched to a zero-length branch at its bifurcation point on the other tree): a point on a branch without an
+image goes where its branch's null partner sits, the image of the point where the branch leaves its parent (up the
 ancestors until one has an image), on either leg of the cycle, and its cycle error is its distance from where it
 comes back. Points near the base of a null-matched branch then return within ``eps`` and points far out on it do not.
 """
@@ -40,6 +40,8 @@ __all__ = ["CycleConsistency", "PAPER_CYCLE_ERRORS", "branch_accuracy", "cycle_c
 # the paper's Table 2 (mean share of points, ours): eps = 0.1, 0.05, 0.02, 0.01
 PAPER_CYCLE_ERRORS = {0.1: 0.0094, 0.05: 0.0200, 0.02: 0.0287, 0.01: 0.0545}
 DEFAULT_EPS = (0.1, 0.05, 0.02, 0.01)
+# divisor floor of a total weight: a tree without (mapped) points gives shares of 0 instead of nan
+MIN_WEIGHT = 1e-300
 
 
 def map_points(registration: TreeRegistration, branch: Tensor, t: Tensor) -> tuple[Tensor, Tensor]:
@@ -53,6 +55,17 @@ def map_points(registration: TreeRegistration, branch: Tensor, t: Tensor) -> tup
     Returns:
         ``(branch (P,), t (P,))`` on the reference; branch ``-1`` (and ``t = nan``) where the moving
         branch is matched to null.
+
+    Example:
+        >>> import torch
+        >>> from torch4dtree.trees import Trees
+        >>> t = torch.linspace(0, 1, 8, dtype=torch.float64)[:, None]
+        >>> stem, leaf, bent = (torch.cat(xyz, dim=1) for xyz in ((0 * t, 0 * t, t), (t, 0 * t, 0.5 + 0 * t),
+        ...                                                       (t, 0.3 * t ** 2, 0.6 + 0 * t)))
+        >>> tree, other = (Trees.from_branches([[stem, b]], [[-1, 0]], T=8, dtype=torch.float64) for b in (leaf, bent))
+        >>> branch, t_image = map_points(register_trees(other, tree), torch.tensor([1]), torch.tensor([0.5]).double())
+        >>> branch.tolist(), t_image.tolist()
+        ([1], [0.5])
     """
     match = dict(registration.matches)
     gamma = registration.gamma.detach().to("cpu", torch.float64).numpy()
@@ -150,6 +163,17 @@ def cycle_consistency(a: Trees, b: Trees, eps: Sequence[float] = DEFAULT_EPS,
     """Cycle consistency of the registrations ``a -> b`` and ``b -> a`` (computed unless given).
 
     ``kwargs`` go to :func:`register_trees`. See the module docstring for how unmatched points count.
+
+    Example:
+        >>> import torch
+        >>> from torch4dtree.trees import Trees
+        >>> t = torch.linspace(0, 1, 8, dtype=torch.float64)[:, None]
+        >>> stem, leaf, bent = (torch.cat(xyz, dim=1) for xyz in ((0 * t, 0 * t, t), (t, 0 * t, 0.5 + 0 * t),
+        ...                                                       (t, 0.3 * t ** 2, 0.6 + 0 * t)))
+        >>> tree, other = (Trees.from_branches([[stem, b]], [[-1, 0]], T=8, dtype=torch.float64) for b in (leaf, bent))
+        >>> cc = cycle_consistency(other, tree)
+        >>> cc.eps, cc.error.tolist(), cc.unmatched
+        ((0.1, 0.05, 0.02, 0.01), [0.0, 0.0, 0.0, 0.0], 0.0)
     """
     fwd = forward if forward is not None else register_trees(a, b, **kwargs)  # type: ignore[arg-type]
     bwd = backward if backward is not None else register_trees(b, a, **kwargs)  # type: ignore[arg-type]
@@ -176,13 +200,13 @@ def cycle_consistency(a: Trees, b: Trees, eps: Sequence[float] = DEFAULT_EPS,
         return d.nan_to_num(np.inf)[None, :] > eps_t[:, None]
 
     fail = failing(dist)
-    err_mapped = (fail & mapped[None, :]).to(torch.float64) @ weight / max(w_mapped, 1e-300)
-    err_all = fail.to(torch.float64) @ weight / max(total, 1e-300)
+    err_mapped = (fail & mapped[None, :]).to(torch.float64) @ weight / max(w_mapped, MIN_WEIGHT)
+    err_all = fail.to(torch.float64) @ weight / max(total, MIN_WEIGHT)
     _, b2n, t2n = _cycle(fwd, bwd, branch, t, (a, b))
-    err_base = failing(distances(b2n, t2n)).to(torch.float64) @ weight / max(total, 1e-300)
+    err_base = failing(distances(b2n, t2n)).to(torch.float64) @ weight / max(total, MIN_WEIGHT)
     return CycleConsistency(
-        tuple(float(e) for e in eps), err_mapped, err_all, 1.0 - w_mapped / max(total, 1e-300),
-        float(weight[mapped & ~back].sum()) / max(w_mapped, 1e-300), dist, weight, err_base,
+        tuple(float(e) for e in eps), err_mapped, err_all, 1.0 - w_mapped / max(total, MIN_WEIGHT),
+        float(weight[mapped & ~back].sum()) / max(w_mapped, MIN_WEIGHT), dist, weight, err_base,
     )
 
 

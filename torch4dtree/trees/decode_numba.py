@@ -12,9 +12,8 @@ its (resampled) parent. In torch that is a dozen passes over ``(K, T, d)`` tenso
    curve (both relative to their own origins);
 3. then, in packed order (parents first): the starts added and each child snapped onto its resampled parent.
 
-The first two passes treat rows and branches independently, so threads could share them; on this project's 2-core
-machine two threads were slower than one (a decoded tomato 4D geodesic: 28.8 against 24.8 ms, median), so they run
-on the calling thread.
+The first two passes treat rows and branches independently, so threads could share them; they run on the calling
+thread, which is faster for the sizes of a decoded 4D geodesic (docs/experiments.md).
 
 The torch code in ``aligned.py`` stays the differentiable path (and the reference the tests compare this with).
 """

@@ -1,4 +1,4 @@
-"""Geodesics between registered 3D trees (SPEC §3): straight lines in the common slot layout.
+"""Geodesics between registered 3D trees (docs/method.md §3): straight lines in the common slot layout.
 
 After registration both trees live in one :class:`AlignedTrees` layout where the metric is a
 weighted L2 norm, so the geodesic is ``(1 - t) Q_moving* + t Q_reference`` (SRVFs, bifurcation
@@ -40,5 +40,16 @@ def geodesic(registration: TreeRegistration | AlignedTrees, n_steps: int = 5, ep
     Branches shorter than ``eps`` (null slots, or branches that have just appeared) are dropped;
     each tree's branch ``label`` is its slot index, so a branch keeps its identity along the path.
     The path's length is ``registration.distance`` (constant speed in the metric).
+
+    Example:
+        >>> import torch
+        >>> from torch4dtree.trees import Trees, register_trees
+        >>> t = torch.linspace(0, 1, 8, dtype=torch.float64)[:, None]
+        >>> stem, leaf, bent = (torch.cat(xyz, dim=1) for xyz in ((0 * t, 0 * t, t), (t, 0 * t, 0.5 + 0 * t),
+        ...                                                       (t, 0.3 * t ** 2, 0.6 + 0 * t)))
+        >>> tree, other = (Trees.from_branches([[stem, b]], [[-1, 0]], T=8, dtype=torch.float64) for b in (leaf, bent))
+        >>> path = geodesic(register_trees(other, tree), n_steps=3)  # other, the midpoint, tree
+        >>> path.num_trees, path.num_branches.tolist()
+        (3, [2, 2, 2])
     """
     return geodesic_aligned(registration, n_steps).to_trees(eps)

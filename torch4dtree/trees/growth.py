@@ -1,4 +1,4 @@
-"""Branch hierarchies that agree over the frames of a growing plant (SPEC §2, "a hierarchy chosen jointly with
+"""Branch hierarchies that agree over the frames of a growing plant (docs/method.md §2, "a hierarchy chosen jointly with
 registration").
 
 A hierarchy rule (:mod:`.skeleton`) decides each frame alone, and near the apex of a young plant it can go either
@@ -9,8 +9,8 @@ backwards in time: the last frame keeps the rule's hierarchy, and each earlier f
 branch and its **alternatives** (at each of the main branch's topmost branch points, continue into another child
 instead), the one that registers best onto its already chosen next frame, if it wins clearly (``margin``). Only
 the main branch's continuation at the top is reconsidered: lower down, the stem is the straight, heavy
-continuation on every day. (Comparing the last frame with the one before it too was tried: it follows a wrong
-earlier frame as often as it mends the last one.)
+continuation on every day. The last frame is not compared with the one before it: that would follow a wrong
+earlier frame as often as it mends the last one.
 """
 
 from __future__ import annotations
@@ -20,9 +20,10 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 
+from ..settings import DEFAULT_T
 from .registration import effective_lambdas, register_to_reference
 from .skeleton import follow_continuations, resolve_branch_points, skeleton_to_trees
-from .structures import DEFAULT_T, Trees
+from .structures import Trees
 
 __all__ = ["alternative_main_paths", "consistent_frames"]
 
@@ -87,9 +88,9 @@ def consistent_frames(skeletons: Sequence[tuple[np.ndarray, np.ndarray, np.ndarr
         screen_T: points per branch of the candidates compared (a coarser sampling than ``T`` is enough to tell
             a stem from a leaf and much cheaper to register).
         margin: an alternative replaces the rule's main path only if it registers closer than ``margin`` times the
-            rule's distance: a young organ at the apex can look like the stem's continuation, and then the two
+            rule's distance: where a young organ at the apex looks like the stem's continuation the two
             registrations differ by a few percent either way, while a frame that chose the wrong continuation
-            registers 15-65 % closer with the right one (realistic synthetic maize).
+            registers much closer with the right one.
         top: branch points at the top of the main branch that may continue elsewhere (0: the rule alone).
         names, ids: per frame, a name and the node ids for error messages.
 
@@ -115,7 +116,7 @@ def consistent_frames(skeletons: Sequence[tuple[np.ndarray, np.ndarray, np.ndarr
         pick = 0
         if len(candidates) > 1:
             # one metric for all candidates (lp relative to the reference alone): their main branches differ in length;
-            # all solved one way (a symmetric solve would invert some of them: distances not comparable to 0.2-1 %)
+            # all solved one way (a symmetric solve would invert some of them: distances not comparable)
             regs = register_to_reference(Trees.cat(candidates), coarse, effective_lambdas(lambdas, coarse), rotation,
                                          lp_relative=False, symmetric=False, positions="warped")
             d = np.array([float(r.distance) for r in regs])

@@ -1,7 +1,7 @@
 """Skeleton graphs (nodes + parent links) to branch hierarchies and back.
 
 A skeleton does not say which child continues a branch at a branch point; a **hierarchy rule**
-decides it (SPEC §2). The main branch starts at the root and, at every branch point, continues
+decides it (docs/method.md §2). The main branch starts at the root and, at every branch point, continues
 into the child the rule picks; every other child starts a side branch, decomposed the same way.
 
 * ``"longest"``: the child with the longest path down to a leaf (the paper's rule). Unstable under
@@ -28,7 +28,8 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 
-from .structures import DEFAULT_T, TreeError, Trees
+from ..settings import DEFAULT_T, HIERARCHIES, check_choice
+from .structures import TreeError, Trees
 
 
 def validate_skeleton(xyz: np.ndarray, parent: np.ndarray, where: str, ids: np.ndarray | None = None) -> np.ndarray:
@@ -122,15 +123,15 @@ def _children(parent: np.ndarray) -> list[list[int]]:
     return children
 
 
-HIERARCHIES = ("straightest", "heaviest", "longest")
-# straightest rule: shares of lengths of the geometry, never of the node spacing, chosen by measurement (the share
-# of ~3700 branch points of the realistic synthetic plants that continue into their own organ, then identities and
-# Pheno4D main-branch agreement; benchmarks/README.md, issue 11)
+# straightest rule: shares of lengths of the geometry, never of the node spacing (the measurements that chose them
+# are in docs/experiments.md)
 WINDOW_EXTENT_SHARE = 0.02  # the plant-wide floor of the window: a share of the plant's extent
 WINDOW_ORGAN_SHARE = 0.5  # the window at a branch point: a share of the side organ's length there
-# children whose subtree is shorter than this many windows are spurs, not candidates; half a window dropped the
-# short stem tip above the youngest leaf (a true continuation) whenever the window was long
+# children whose subtree is shorter than this many windows are spurs, not candidates; a longer threshold would drop
+# the short stem tip above the youngest leaf (a true continuation) where the window is long
 SPUR_WINDOWS = 0.1
+# divisor floor of a product of vector norms: a zero-length direction gives an angle instead of nan
+MIN_NORM = 1e-300
 
 
 def default_window(xyz: np.ndarray, parent: np.ndarray, edge: np.ndarray,
@@ -147,7 +148,7 @@ def organ_window(child_reach: np.ndarray, floor: float) -> float:
     Why the organ and not the plant: a maize leaf's sheath hugs the stem for a good part of the leaf's length,
     so the window must reach past it, while a short spur or a young leaflet must not widen the window beyond
     its own scale. Both are lengths of the geometry, so splitting or merging collinear edges leaves them as is
-    (a floor of a few median edges did not: it halved when every edge was split)."""
+    (a floor in median edges would halve when every edge is split)."""
     if len(child_reach) < 2:
         return floor
     return max(floor, WINDOW_ORGAN_SHARE * float(np.partition(child_reach, -2)[-2]))
@@ -215,15 +216,14 @@ def _point_down(xyz: np.ndarray, parent: np.ndarray, children: list[list[int]], 
 def _angle(u: np.ndarray, v: np.ndarray) -> float:
     # np.linalg.norm of a vector is sqrt(x.dot(x)): the same numbers, without its overhead (a hot path)
     norms = math.sqrt(float(u.dot(u))) * math.sqrt(float(v.dot(v)))
-    return math.acos(min(max(float(u @ v) / max(norms, 1e-300), -1.0), 1.0))
+    return math.acos(min(max(float(u @ v) / max(norms, MIN_NORM), -1.0), 1.0))
 
 
 def continuation_children(xyz: np.ndarray, parent: np.ndarray, order: np.ndarray, children: list[list[int]],
                           edge: np.ndarray, hierarchy: str = "straightest", where: str = "skeleton",
                           window: float | None = None) -> np.ndarray:
     """``best (n,)``: the child that continues the branch through each node (``-1`` at leaves)."""
-    if hierarchy not in HIERARCHIES:
-        raise TreeError(f"{where}: unknown hierarchy rule {hierarchy!r}; expected one of {', '.join(HIERARCHIES)}")
+    check_choice(f"{where}: hierarchy", hierarchy, HIERARCHIES)
     n = len(xyz)
     reach, weight = _subtree_lengths(order, children, edge)
     length = edge.tolist()
@@ -372,6 +372,13 @@ def skeleton_to_trees(
 
     ``node_labels (n,)``, if given, labels each branch by the most common label of its own nodes
     (the branch point it starts from belongs to the parent and is not counted).
+
+    Example:
+        >>> import numpy as np
+        >>> xyz = np.array([[0, 0, 0], [0, 0, 1], [0, 0, 2], [1, 0, 1.5]], dtype=float)  # a stem and one side node
+        >>> tree = skeleton_to_trees(xyz, np.array([-1, 0, 1, 1]), T=8)
+        >>> tree.num_branches.tolist(), tree.parent.tolist(), tree.s.tolist()
+        ([2], [-1, 0], [0.0, 0.5])
     """
     polylines, parents, paths = skeleton_to_branches(
         xyz, parent, max_layers, min_branch_length, main_path, where, ids, hierarchy, window

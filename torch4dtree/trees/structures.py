@@ -1,6 +1,6 @@
 """Ragged batches of trees (`Trees`) and 4D trees (`TreeSequence`).
 
-One canonical form, everything else derived (see DESIGN.md):
+One canonical form, everything else derived (docs/method.md §2):
 
 * every branch of every tree is **packed** in one tensor ``points (N, T, d)`` of polylines
   resampled uniformly in arc length (``T`` points each),
@@ -25,8 +25,8 @@ import torch
 from torch import Tensor
 
 from ..curves.srvf import curve_length, interpolate_curve, resample_polylines
+from ..settings import DEFAULT_T
 
-DEFAULT_T = 64
 # a side branch whose first point is within this many parent grid steps of its parent is moved onto it whole
 BRIDGE_GAP = 0.5
 
@@ -45,6 +45,17 @@ class Trees:
         s: ``(N,)`` bifurcation parameter on the parent in ``[0, 1]`` (``0`` for a main branch).
         num_branches: ``(n_trees,)`` long, branches per tree (each at least 1).
         label: ``(N,)`` long ground-truth branch identity, ``-1`` where unknown.
+
+    Example:
+        >>> import torch
+        >>> t = torch.linspace(0, 1, 8, dtype=torch.float64)[:, None]
+        >>> stem = torch.cat([0 * t, 0 * t, t], dim=1)
+        >>> leaf = torch.cat([t, 0 * t, 0.5 + 0 * t], dim=1)  # starts on the stem at half its length
+        >>> tree = Trees.from_branches([[stem, leaf]], [[-1, 0]], T=8, dtype=torch.float64)
+        >>> tree.num_trees, tree.points.shape, tree.parent.tolist(), [round(x, 6) for x in tree.s.tolist()]
+        (1, torch.Size([2, 8, 3]), [-1, 0], [0.0, 0.5])
+        >>> Trees.cat([tree, tree]).num_branches.tolist()
+        [2, 2]
     """
 
     points: Tensor

@@ -3,14 +3,13 @@
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
 
 import numpy as np
 import pytest
 import torch
+from samples import T, random_tree, transformed_copy, transformed_copy_truth
 
-from torch4dtree.curves import random_warp, srvf_sq_norm, warp_curve
-from torch4dtree.curves.rotation import axis_rotation, random_rotation
+from torch4dtree.curves import srvf_sq_norm
 from torch4dtree.trees.aligned import AlignedTrees, subtree_sq_norms
 from torch4dtree.trees.correspondence import branch_accuracy, cycle_consistency, map_points
 from torch4dtree.trees.registration import (
@@ -21,111 +20,6 @@ from torch4dtree.trees.registration import (
     register_trees,
 )
 from torch4dtree.trees.structures import Trees
-
-T = 24
-
-
-# ----------------------------------------------------------------------------- tree generators
-
-
-def _curve(rng, n, length, start, direction):
-    d = np.asarray(direction, float)
-    d /= np.linalg.norm(d)
-    bend = rng.normal(scale=0.5, size=(2, 3))
-    t = np.linspace(0, 1, n)[:, None]
-    pts = t * d + t**2 * bend[0] * 0.4 + np.sin(np.pi * t) * bend[1] * 0.3
-    return pts / np.linalg.norm(np.diff(pts, axis=0), axis=1).sum() * length + start
-
-
-def random_tree(rng, n_side=(3, 5), depth=3, T=T, extra=None):
-    """A plant-like random tree, labels 0..N-1 in generation order; ``extra`` = (s, length) adds one branch."""
-    main = _curve(rng, 40, 30.0, np.zeros(3), [0, 0, 1])
-    br, par, lengths, frontier = [main], [-1], [30.0], [0]
-    for lev in range(depth - 1):
-        new = []
-        for b in frontier:
-            k = int(rng.integers(n_side[0], n_side[1] + 1)) if lev == 0 else int(rng.integers(0, 3))
-            for s in np.sort(rng.uniform(0.1, 0.9, size=k)):
-                p = br[b]
-                frac = np.concatenate([[0], np.linalg.norm(np.diff(p, axis=0), axis=1).cumsum()]) / lengths[b]
-                ang = rng.uniform(0, 2 * math.pi)
-                length = lengths[b] * rng.uniform(0.25, 0.5)
-                br.append(_curve(rng, 25, length, p[int(np.searchsorted(frac, s))], [math.cos(ang), math.sin(ang),
-                                                                                      rng.uniform(0.2, 1.0)]))
-                par.append(b)
-                lengths.append(length)
-                new.append(len(br) - 1)
-        frontier = new
-    if extra is not None:
-        s, length = extra
-        k = int(s * (len(main) - 1))
-        br.append(_curve(np.random.default_rng(99), 25, length, main[k], [-1.0, 0.3, 0.5]))
-        par.append(0)
-    return Trees.from_branches([br], [par], T=T, labels=[list(range(len(br)))], dtype=torch.float64)
-
-
-def _restore_order(points, parent, s, label):
-    """Depth-first order with children sorted by ``s`` (the Trees convention), from any parent-first order.
-
-    Returns the tree and ``order`` (new branch ``k`` is old branch ``order[k]``)."""
-    N = len(parent)
-    children = [[] for _ in range(N)]
-    for i, p in enumerate(parent):
-        if p >= 0:
-            children[p].append(i)
-    order, stack = [], [0]
-    while stack:
-        k = stack.pop()
-        order.append(k)
-        stack.extend(sorted(children[k], key=lambda c: -float(s[c])))
-    new = {k: i for i, k in enumerate(order)}
-    tree = Trees(points[order], torch.tensor([-1 if parent[k] < 0 else new[parent[k]] for k in order]),
-                 s[order], torch.tensor([N]), label[order])
-    return tree, order
-
-
-class CopyTruth(NamedTuple):
-    """Ground truth of :func:`transformed_copy_truth`: copy branch ``k`` is ``O (tree branch order[k] o
-    warps[order[k]] - root) + root + shift``."""
-
-    order: list
-    warps: torch.Tensor  # (N, T), indexed by the original branch
-    rotation: torch.Tensor  # (3, 3)
-    shift: torch.Tensor  # (3,)
-
-
-def transformed_copy_truth(tree, gen, rotation="none", strength=0.8, angle=None):
-    """The same tree rotated about its root, translated, every branch reparameterised (children moved
-    with their parent's warp, so their order along the parent may change), stored in a new order;
-    returns the copy and its :class:`CopyTruth`. ``angle``: the vertical rotation (random if None)."""
-    N, Tn, _ = tree.points.shape
-    g = random_warp(N, Tn, generator=gen, strength=strength)
-    pts = warp_curve(tree.points, g)
-    grid = np.linspace(0, 1, Tn)
-    s = tree.s.clone()
-    parent = tree.parent.tolist()
-    for i, p in enumerate(parent):
-        if p >= 0:
-            s[i] = float(np.interp(float(tree.s[i]), g[p].numpy(), grid))
-    if rotation == "so3":
-        O = random_rotation(1, 3, generator=gen)[0]
-    elif rotation == "vertical":
-        th = torch.rand(1, generator=gen, dtype=torch.float64) * 2 * math.pi if angle is None else torch.tensor([angle])
-        O = axis_rotation(torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64), th.double())[0]
-    else:
-        O = torch.eye(3, dtype=torch.float64)
-    root = tree.points[0, 0]
-    shift = torch.tensor([1.0, -2.0, 0.5], dtype=torch.float64)
-    pts = (pts - root) @ O.T + root + shift
-    # the warps move children along their parents, so re-sorting by s permutes the side subtrees
-    # (the labels keep the ground truth)
-    copy, order = _restore_order(pts, parent, s, tree.label)
-    return copy, CopyTruth(order, g, O, shift)
-
-
-def transformed_copy(tree, gen, rotation="none", strength=0.8, angle=2.0):
-    """:func:`transformed_copy_truth` without the truth (a fixed vertical angle unless ``angle=None``)."""
-    return transformed_copy_truth(tree, gen, rotation, strength, angle)[0]
 
 
 def _tree_norm(tree, lambdas=(1.0, 1.0, 1.0)):
@@ -361,14 +255,30 @@ def test_many_to_one_matches_one_by_one_and_pairwise():
 
 
 def test_pairwise_distances_in_processes(monkeypatch):
-    import torch4dtree.trees.registration as reg
+    import torch4dtree.trees.pairwise as pw
 
-    monkeypatch.setattr(reg, "MIN_PAIRS_PER_PROCESS", 1)  # force the pool even for 3 pairs
+    monkeypatch.setattr(pw, "MIN_PAIRS_PER_PROCESS", 1)  # force the pool even for 3 pairs
     rng = np.random.default_rng(8)
     batch = Trees.cat([random_tree(rng, n_side=(1, 2), depth=2, T=16) for _ in range(3)])
     D1 = pairwise_distances(batch, processes=1, progress=False)
     D2 = pairwise_distances(batch, processes=2, progress=False)
-    assert torch.allclose(D1, D2)
+    assert torch.equal(D1, D2)
+
+
+def test_pairwise_distances_on_an_executor_equal_inline():
+    """Rows run on a given executor give the same matrix, bit for bit, as inline; calls nest (no shared state)."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
+
+    rng = np.random.default_rng(9)
+    batch = Trees.cat([random_tree(rng, n_side=(1, 2), depth=2, T=12) for _ in range(3)])
+    inline = pairwise_distances(batch, processes=1, progress=False)
+    with ProcessPoolExecutor(2, mp_context=multiprocessing.get_context("spawn")) as pool:
+        spread = pairwise_distances(batch, progress=False, executor=pool)
+    assert torch.equal(inline, spread)
+    with ThreadPoolExecutor(2) as pool:  # two calls at once in one process
+        both = list(pool.map(lambda b: pairwise_distances(b, processes=1, progress=False), [batch, batch]))
+    assert all(torch.equal(inline, D) for D in both)
 
 
 # ----------------------------------------------------------------------------- data
@@ -426,7 +336,7 @@ def test_children_aware_parent_warp():
     """A straight stem carries one child at s = 0.3 in A and 0.6 in B. The stem's own DP warp is the
     identity (any other stretches it), which leaves the child 0.3 away: with a large lp the metric's
     infimum instead warps the stem so the child lands on its partner (stem cost L int (1 - sqrt(g'))^2)."""
-    import torch4dtree.trees.registration as reg
+    import torch4dtree.trees.refit as refit
 
     stem = torch.stack([torch.zeros(T), torch.zeros(T), torch.linspace(0, 1, T)], 1).double()
     leaf = torch.stack([torch.linspace(0, 0.8, T), torch.zeros(T), torch.zeros(T)], 1).double()
@@ -436,12 +346,12 @@ def test_children_aware_parent_warp():
                             dtype=torch.float64)
     lam = (1.0, 1.0, 10.0)  # matching the children (<= 0.9) beats leaving both unmatched (1.6)
     with_refit = register_trees(A, B, lambdas=lam, lp_relative=False, positions="warped")  # lp in the data's units
-    rounds = reg.LANDMARK_ROUNDS
+    rounds = refit.LANDMARK_ROUNDS
     try:
-        reg.LANDMARK_ROUNDS = 0
+        refit.LANDMARK_ROUNDS = 0
         stem_only = register_trees(A, B, lambdas=lam, lp_relative=False, positions="warped")
     finally:
-        reg.LANDMARK_ROUNDS = rounds
+        refit.LANDMARK_ROUNDS = rounds
     assert with_refit.matches == stem_only.matches == [(0, 0), (1, 1)]
     assert float(stem_only.distance) ** 2 == pytest.approx(10 * 0.3 ** 2, rel=0.05)
     # the piecewise-linear warp through (0.6, 0.3) costs 0.6 (1 - sqrt(0.5))^2 + 0.4 (1 - sqrt(1.75))^2 = 0.093
@@ -512,12 +422,12 @@ def test_children_refit_is_skipped_where_the_position_terms_are_negligible(monke
     """With lp = 1 on trees in mm the children's parameter terms are far below 1 % of a node's cost: the
     refit must not run there (applied anyway it changed Pheno4D warps for a 1e-4 gain and cost cycle
     consistency, benchmarks/README.md), so the result equals the refit-free one exactly."""
-    import torch4dtree.trees.registration as reg
+    import torch4dtree.trees.refit as refit
 
     rng = np.random.default_rng(22)
     A, B = random_tree(rng), random_tree(rng)
     r = register_trees(A, B, lp_relative=False)  # lp = 1 in the data's units
-    monkeypatch.setattr(reg, "LANDMARK_ROUNDS", 0)
+    monkeypatch.setattr(refit, "LANDMARK_ROUNDS", 0)
     r0 = register_trees(A, B, lp_relative=False)
     assert r.matches == r0.matches and torch.equal(r.gamma, r0.gamma)
     assert float(r.distance) == float(r0.distance)
@@ -592,14 +502,15 @@ def test_rotation_starts_spread_over_a_full_turn(rotation):
     could not see that bug because the side branches usually fix the spin anyway)."""
     import math
 
-    from torch4dtree.trees.registration import _initial_rotations, _prepare
+    from torch4dtree.trees.prepare import prepare_tree
+    from torch4dtree.trees.rotations import initial_rotations
 
     rng = np.random.default_rng(3)
     A, B = random_tree(rng, T=32), random_tree(rng, T=32)
     lam = (1.0, 1.0, 1.0)
     up = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)
     n = 12
-    starts = _initial_rotations(_prepare(B, lam), _prepare(A, lam), rotation, up, n, {})
+    starts = initial_rotations(prepare_tree(B, lam), prepare_tree(A, lam), rotation, up, n, {})
     assert len(starts) == n + 1  # the identity, the main branches' rotation, n - 1 spins of it
     base = starts[1]
     angles = []
@@ -628,7 +539,7 @@ def test_arclength_positions_ignore_parametrisation(positions):
     assert branch_accuracy(r, B, A) == 1.0
     assert float(r.distance) < 0.2 * float(r.distance_before)
     assert abs(float(r.distance) - float(shape_only.distance)) < 0.01 * float(shape_only.distance)
-    with pytest.raises(ValueError, match="unknown positions"):
+    with pytest.raises(ValueError, match="positions must be one of"):
         register_trees(B, A, positions="fraction")
 
 
@@ -681,10 +592,10 @@ def test_rank_positions_count_nodes_not_arc_length():
     """Node ranks of the main branch's children: opposite leaves share a rank, a node counts ~1 whatever the
     internodes' lengths (the same plant with its stem stretched above the first node has the same ranks), a short
     spur barely counts."""
-    from torch4dtree.trees.registration import _prepare
+    from torch4dtree.trees.prepare import prepare_tree
 
     def ranks(tree):
-        t = _prepare(tree, (1.0, 1.0, 1.0), "rank")
+        t = prepare_tree(tree, (1.0, 1.0, 1.0), "rank")
         return t.s[t.children[0]]
 
     r = ranks(_comb([20.0, 20.0, 40.0, 60.0]))
@@ -696,7 +607,7 @@ def test_rank_positions_count_nodes_not_arc_length():
     assert np.allclose(shift, shift[0], atol=1e-9) and 0.0 < shift[0] < 0.02, spur
     # deeper children (on side branches) keep their arc-length fractions
     tree = random_tree(np.random.default_rng(3), T=32)
-    rank, arc = (_prepare(tree, (1.0, 1.0, 1.0), p) for p in ("rank", "arclength"))
+    rank, arc = (prepare_tree(tree, (1.0, 1.0, 1.0), p) for p in ("rank", "arclength"))
     deeper = [i for i, p in enumerate(rank.parent) if p > 0]
     assert deeper and np.array_equal(rank.s[deeper], arc.s[deeper])
     assert not np.allclose(rank.s[rank.children[0]], arc.s[rank.children[0]])

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-from test_warping import rough_curves, smooth_curves
+from samples import rough_curves, smooth_curves
 
 from torch4dtree import curves as W
 from torch4dtree.curves import refinement as R
@@ -15,7 +15,7 @@ from torch4dtree.curves import srvf, warp_curve
 def _numba_refine(q1: torch.Tensor, beta2: torch.Tensor, gamma: torch.Tensor, iters: int) -> torch.Tensor:
     out = gamma.detach().double().numpy().copy()
     for b in range(len(out)):
-        R._nb_gauss_newton(q1[b].double().numpy().copy(), beta2[b].double().numpy().copy(), out[b], iters)
+        R.nb_gauss_newton(q1[b].double().numpy().copy(), beta2[b].double().numpy().copy(), out[b], iters)
     return torch.from_numpy(out)
 
 

@@ -20,9 +20,9 @@ from functools import cache
 import numpy as np
 import pytest
 import torch
-from test_warping import path_to_warp
+from samples import path_to_warp
 
-import torch4dtree.trees.registration as reg
+import torch4dtree.trees.solver as solver
 from torch4dtree.curves import srvf, warp_energy
 from torch4dtree.trees.registration import register_to_reference, register_trees
 from torch4dtree.trees.structures import Trees
@@ -218,7 +218,7 @@ def test_the_lattice_is_what_brute_force_enumerates() -> None:
 def test_tree_registration_equals_brute_force(seed: int, monkeypatch: pytest.MonkeyPatch) -> None:
     """With the children-aware refit off, register_trees solves the paper's problem: its distance must equal
     the enumerated optimum exactly, for random trees and random lambdas (not only 1, 1, 1)."""
-    monkeypatch.setattr(reg, "LANDMARK_MIN_SHARE", math.inf)
+    monkeypatch.setattr(solver, "LANDMARK_MIN_SHARE", math.inf)
     rng = np.random.default_rng(100 + seed)
     fallbacks = 0
     for _ in range(6):
@@ -237,7 +237,7 @@ def test_tree_registration_equals_brute_force(seed: int, monkeypatch: pytest.Mon
 def test_pairs_at_the_pruning_bound_equal_brute_force(seed: int, monkeypatch: pytest.MonkeyPatch) -> None:
     """Straight, parallel side branches of very different lengths: matching them costs about the pruning
     lower bound and can still beat leaving both unmatched. Pruning must not drop such pairs."""
-    monkeypatch.setattr(reg, "LANDMARK_MIN_SHARE", math.inf)
+    monkeypatch.setattr(solver, "LANDMARK_MIN_SHARE", math.inf)
     rng = np.random.default_rng(200 + seed)
     for _ in range(8):
         A, B = tiny_tree(rng, straight=True), tiny_tree(rng, straight=True)
@@ -263,7 +263,7 @@ def test_children_aware_refit_is_never_worse_than_brute_force() -> None:
 
 def test_batched_registration_equals_brute_force(monkeypatch: pytest.MonkeyPatch) -> None:
     """register_to_reference shares one DP call across trees: each result is still the optimum of its pair."""
-    monkeypatch.setattr(reg, "LANDMARK_MIN_SHARE", math.inf)
+    monkeypatch.setattr(solver, "LANDMARK_MIN_SHARE", math.inf)
     rng = np.random.default_rng(11)
     ref = tiny_tree(rng)
     movs = [tiny_tree(rng) for _ in range(5)]
@@ -277,7 +277,7 @@ def test_batched_registration_equals_brute_force(monkeypatch: pytest.MonkeyPatch
 def test_symmetric_registration_is_the_optimum_one_way(monkeypatch: pytest.MonkeyPatch) -> None:
     """The symmetric registration (default) of either argument order is one solution: the optimum of the smaller
     tree registered onto the larger (the canonical direction), and its inverse the other way."""
-    monkeypatch.setattr(reg, "LANDMARK_MIN_SHARE", math.inf)
+    monkeypatch.setattr(solver, "LANDMARK_MIN_SHARE", math.inf)
     rng = np.random.default_rng(300)
     for _ in range(6):
         A, B = tiny_tree(rng), tiny_tree(rng)

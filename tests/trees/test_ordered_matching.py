@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 import torch
 
-from torch4dtree.trees.registration import _assignment, _ordered_assignment, register_trees
+from torch4dtree.trees.matching import assignment, ordered_assignment
+from torch4dtree.trees.registration import register_trees
 from torch4dtree.trees.structures import Trees
 
 TOL = 0.02
@@ -57,7 +58,7 @@ def test_ordered_dp_against_brute_force(ties_ref: bool) -> None:
     for trial in range(150):
         k1, k2 = int(rng.integers(0, 5)), int(rng.integers(0, 5))
         cost, n1, n2, s1, s2, g1, g2 = _random_case(rng, k1, k2, levels=int(rng.integers(1, 5)), ties_ref=ties_ref)
-        total, pairs = _ordered_assignment(cost, n1, n2, s1, s2, TOL)
+        total, pairs = ordered_assignment(cost, n1, n2, s1, s2, TOL)
         # the DP's matching is admissible, finite, and its cost is the one it reports
         assert len({i for i, _ in pairs}) == len(pairs) == len({j for _, j in pairs})
         assert _no_strict_crossing(pairs, g1, g2)
@@ -70,7 +71,7 @@ def test_ordered_dp_against_brute_force(ties_ref: bool) -> None:
         else:  # both sides tied: between that minimum and the group one-to-one one (staircases are left out)
             assert best_free - 1e-12 <= total <= best_groups + 1e-12, trial
         # never below the unconstrained assignment, equal to it when all positions are distinct and it is monotone
-        assert total >= _assignment(cost, n1, n2)[0] - 1e-12
+        assert total >= assignment(cost, n1, n2)[0] - 1e-12
 
 
 def test_ordered_dp_distinct_positions_is_monotone_alignment() -> None:
@@ -82,7 +83,7 @@ def test_ordered_dp_distinct_positions_is_monotone_alignment() -> None:
         s1 += np.arange(k1) * 0.1  # spaced beyond TOL
         s2 += np.arange(k2) * 0.1
         cost, n1, n2 = rng.uniform(0, 4, (k1, k2)), rng.uniform(0.5, 3, k1), rng.uniform(0.5, 3, k2)
-        total, _ = _ordered_assignment(cost, n1, n2, s1, s2, TOL)
+        total, _ = ordered_assignment(cost, n1, n2, s1, s2, TOL)
         mono = [p for p in _matchings(k1, k2) if all(j < m for (_, j), (_, m) in itertools.combinations(p, 2))]
         assert total == pytest.approx(min(_cost(p, cost, n1, n2) for p in mono), rel=1e-12)
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-from test_registration import random_tree
+from samples import random_tree
 
 from torch4dtree.curves import interpolate_curve
 from torch4dtree.trees.aligned import AlignedTrees

@@ -8,8 +8,9 @@ import torch
 from conftest import PHENO4D, pheno4d
 
 from torch4dtree.io import read_swc_skeleton
+from torch4dtree.settings import HIERARCHIES
 from torch4dtree.trees.registration import register_trees
-from torch4dtree.trees.skeleton import HIERARCHIES, skeleton_to_branches, skeleton_to_trees
+from torch4dtree.trees.skeleton import skeleton_to_branches, skeleton_to_trees
 
 
 def stem_with_long_top_leaf(step: float = 1.0):
@@ -50,7 +51,7 @@ def test_rules_on_a_stem_with_a_long_apex_leaf():
 
 def test_unknown_rule_and_bad_window_are_errors():
     xyz, parent = stem_with_long_top_leaf()
-    with pytest.raises(ValueError, match="unknown hierarchy rule 'tallest'"):
+    with pytest.raises(ValueError, match="plant.swc: hierarchy must be one of .* got 'tallest'"):
         skeleton_to_branches(xyz, parent, hierarchy="tallest", where="plant.swc")
     with pytest.raises(ValueError, match="window must be positive"):
         skeleton_to_branches(xyz, parent, window=0.0)

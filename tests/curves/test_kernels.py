@@ -80,5 +80,5 @@ def test_warm_up_then_no_notice(capsys):
     register_curves(curves(2, 16, 4), curves(2, 16, 5))
     assert capsys.readouterr().err == ""
     out = dp_numba.run_pairs(False, np.zeros((0, 7, 3)), np.zeros((0, 7, 3)), False,
-                             dp_numba._step_arrays(2) * 2, np.zeros(9, np.int64), np.zeros(3), 0.0)
+                             dp_numba.step_arrays(2) * 2, np.zeros(9, np.int64), np.zeros(3), 0.0)
     assert [o.shape for o in out] == [(0,), (0,), (0, 8), (0, 3, 3), (0, 1, 0), (0, 0, 0)]

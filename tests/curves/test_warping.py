@@ -6,27 +6,11 @@ import math
 
 import pytest
 import torch
+from samples import path_to_warp, rough_curves, smooth_curves
 
 from torch4dtree import curves as W
-from torch4dtree.curves import curve_length, dp_numba, interpolate_curve, srvf, warp_curve, warp_srvf
+from torch4dtree.curves import dp_numba, interpolate_curve, srvf, warp_curve, warp_srvf
 from torch4dtree.curves.rotation import axis_rotation, optimal_rotation, random_rotation
-
-
-def smooth_curves(B: int, T: int, d: int = 3, seed: int = 0, modes: int = 5,
-                  dtype: torch.dtype = torch.float64) -> torch.Tensor:
-    """Smooth random curves of unit length ``(B, T, d)`` (random Fourier modes with decaying amplitudes)."""
-    g = torch.Generator().manual_seed(seed)
-    s = torch.linspace(0, 1, T, dtype=torch.float64)
-    k = torch.arange(1, modes + 1, dtype=torch.float64)
-    c = torch.randn(B, modes, d, generator=g, dtype=torch.float64) / k[:, None]
-    ph = torch.rand(B, modes, d, generator=g, dtype=torch.float64) * 2 * math.pi
-    x = torch.einsum("bkd,bkdt->btd", c, torch.sin(math.pi * k[None, :, None, None] * s + ph[..., None]))
-    return (x / curve_length(x)[:, None, None]).to(dtype)
-
-
-def rough_curves(B: int, T: int, d: int = 3, seed: int = 0) -> torch.Tensor:
-    g = torch.Generator().manual_seed(seed)
-    return torch.randn(B, T, d, generator=g, dtype=torch.float64).cumsum(1) / T
 
 
 def lattice_paths(M: int, n: int) -> list[list[tuple[int, int]]]:
@@ -45,14 +29,6 @@ def lattice_paths(M: int, n: int) -> list[list[tuple[int, int]]]:
 
     walk([(0, 0)])
     return out
-
-
-def path_to_warp(path: list[tuple[int, int]], M: int) -> torch.Tensor:
-    gamma = torch.zeros(M + 1, dtype=torch.float64)
-    for (k, l), (i, j) in zip(path[:-1], path[1:], strict=True):
-        for m in range(k, i + 1):
-            gamma[m] = (l + (m - k) * (j - l) / (i - k)) / M
-    return gamma
 
 
 # ------------------------------------------------------------------ the DP itself
@@ -387,7 +363,7 @@ def test_backend_choice_is_honoured(monkeypatch: pytest.MonkeyPatch) -> None:
     def boom(*args: object) -> None:
         raise RuntimeError("torch DP called")
 
-    monkeypatch.setattr(R, "_dp_torch", boom)
+    monkeypatch.setattr(R, "banded_dp_torch", boom)
     q1, q2 = srvf(rough_curves(2, 12, seed=60)), srvf(rough_curves(2, 12, seed=61))
     for backend in ("numba", "auto"):
         W.dp_warp(q1, q2, backend=backend)

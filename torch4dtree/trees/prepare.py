@@ -1,0 +1,126 @@
+"""A tree in the form the registration solver uses, and how its children's positions are compared.
+
+``positions`` (docs/method.md §3) says what a child's place on its parent is: ``"warped"`` its bifurcation
+parameter moved by the parent's warp, ``"arclength"`` its arc length from the parent's base, ``"rank"`` (main
+branch's children) its node rank, the weighted count of nodes below it.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from ..curves.srvf import srvf, srvf_sq_norm
+from .aligned import Lambdas, subtree_sq_norms
+from .matching import order_groups
+from .structures import Trees
+
+__all__ = ["MIN_LENGTH", "PreparedTree", "RANK_NODE_TOL", "RANK_SIGNIFICANT", "child_positions", "prepare_tree"]
+
+# floor of a length used as a divisor: a zero-length branch gives finite positions instead of nan
+MIN_LENGTH = 1e-12
+# "rank": siblings closer than this share of the main branch's length are one node
+RANK_NODE_TOL = 0.02
+# "rank": a node counts 1 - exp(-(l / (RANK_SIGNIFICANT x main branch length))^2) towards the ranks above it, l its
+# largest subtree's total length: a skeleton spur a few % of the stem long barely counts, an organ counts ~1
+RANK_SIGNIFICANT = 0.1
+
+
+@dataclass
+class PreparedTree:
+    """One tree in the form the solver uses (float64; branch lists per node)."""
+
+    points: Tensor  # (N, T, d), as given (keeps autograd)
+    q: Tensor  # (N, M, d) float64, detached
+    s: np.ndarray  # (N,) the compared positions (see prepare_tree)
+    frac: np.ndarray  # (N,) the tree's own bifurcation parameters (what a layout is decoded with)
+    parent: list[int]
+    children: list[list[int]]  # sorted by s
+    depth: list[int]
+    sqrt_len: np.ndarray  # (N,) sqrt(||q||^2)
+    norm: np.ndarray  # (N,) recursive subtree squared norms
+
+
+def prepare_tree(tree: Trees, lambdas: Lambdas, positions: str = "warped") -> PreparedTree:
+    """The solver's form of a single tree (``tree.num_trees == 1``), on the CPU in float64.
+
+    ``positions`` (see :func:`child_positions`): ``"warped"``: ``s`` as given; ``"arclength"``: ``s`` as arc-length
+    fractions of the parents (the parameters themselves for uniformly resampled trees); ``"rank"``: the main
+    branch's children's ``s`` as node ranks (:func:`_node_ranks`), deeper ones as arc-length fractions.
+    ``lambdas`` weigh the recursive subtree norms (``norm``, the cost of leaving a subtree unmatched).
+    """
+    if tree.num_trees != 1:
+        raise ValueError(f"expected a single tree, got a batch of {tree.num_trees}")
+    # the discrete solve (DP warps, assignments) runs on the CPU; results go back to the input's device
+    q = srvf(tree.points.detach().cpu().to(torch.float64))
+    parent = tree.parent.tolist()
+    frac = tree.s.detach().cpu().to(torch.float64).numpy()
+    s = frac.copy()
+    children: list[list[int]] = [[] for _ in parent]
+    for i, p in enumerate(parent):
+        if p >= 0:
+            children[p].append(i)
+    for ch in children:
+        ch.sort(key=lambda c: s[c])
+    lengths = srvf_sq_norm(q).numpy()
+    if positions != "warped":  # |q|^2 is the speed: cumulative segment lengths give the arc length at each parameter
+        seg = q.square().sum(-1).numpy() / q.shape[1]
+        arc = np.concatenate([np.zeros((len(parent), 1)), np.cumsum(seg, axis=1)], axis=1)
+        grid = np.linspace(0.0, 1.0, arc.shape[1])
+        for i, p in enumerate(parent):
+            if p >= 0:
+                s[i] = np.interp(s[i], grid, arc[p]) / max(float(arc[p, -1]), MIN_LENGTH)
+        if positions == "rank":
+            s = _node_ranks(s, parent, children, lengths)
+    return PreparedTree(tree.points, q, s, frac, parent, children, tree.depth.tolist(), np.sqrt(lengths),
+                        np.asarray(subtree_sq_norms(lengths.tolist(), parent, lambdas)))
+
+
+def _node_ranks(s_arc: np.ndarray, parent: list[int], children: list[list[int]], lengths: np.ndarray) -> np.ndarray:
+    """``(N,)`` positions: the main branch's children as the weighted count of nodes below them on it (siblings of
+    one node share a rank), deeper children keep their arc-length fractions ``s_arc (N,)``.
+
+    Why: plants of one kind at different stages share their basal nodes (node k of one is node k of the other),
+    while the arc length of node k grows with the internodes below it. Only the main branch: leaflets and their
+    spurs count differently from plant to plant (docs/experiments.md).
+    """
+    total = lengths.astype(np.float64).copy()  # subtree total lengths, children after parents in packed order
+    for i in range(len(parent) - 1, 0, -1):
+        if parent[i] >= 0:
+            total[parent[i]] += total[i]
+    out = s_arc.copy()
+    if not children or not children[0]:
+        return out
+    stem = np.asarray(children[0])  # deeper children keep their arc fractions
+    scale = max(RANK_SIGNIFICANT * float(lengths[0]), MIN_LENGTH)
+    below = 0.0
+    for grp in order_groups(s_arc[stem], RANK_NODE_TOL):
+        members = stem[grp]
+        out[members] = below
+        below += 1.0 - math.exp(-((float(total[members].max()) / scale) ** 2))
+    return out
+
+
+def child_positions(mov: PreparedTree, ref: PreparedTree, a: int, b: int, children: Sequence[int],
+                    gamma_ab: np.ndarray, grid: np.ndarray, positions: str) -> np.ndarray:
+    """``(len(children),)``: where moving branch ``a``'s ``children`` sit on reference branch ``b``, to be compared
+    with the reference children's ``s`` (both trees prepared with the same ``positions``, :func:`prepare_tree`).
+
+    ``"warped"``: ``gamma_ab^{-1}(s_c)`` (``gamma_ab (T,)`` the parent's warp sampled on ``grid (T,)``,
+    docs/method.md §3); ``"arclength"``: their arc length from the parent's base whatever the warp, in units of the
+    reference parent's length (may exceed 1); ``"rank"``: their node ranks as they are.
+    """
+    if not len(children):
+        return np.zeros(0)
+    s_c = mov.s[list(children)]
+    if positions == "arclength":
+        return s_c * mov.sqrt_len[a] ** 2 / max(float(ref.sqrt_len[b]) ** 2, MIN_LENGTH)
+    if positions == "rank":
+        return s_c.copy()
+    return np.interp(s_c, gamma_ab, grid)
+

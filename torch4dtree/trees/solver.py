@@ -1,0 +1,169 @@
+"""The recursive registration solver for fixed rotations: warps of every matched branch pair, then the
+children's matchings, bottom-up (docs/method.md §3).
+
+The candidate pairs are generated top-down, depth by depth (children pairs of every non-pruned parent pair), and each
+depth is ONE batched :func:`~torch4dtree.curves.dp_warp` call over every pair of every registration in flight (all
+the moving trees of a registration, all rotation starts). The matchings are then solved bottom-up from those costs.
+Pruning is exact: a pair whose lower bound ``lp ds^2 + ls lm E_branch`` already costs as much as leaving both subtrees
+unmatched can never be used by an optimal matching, so its subtrees are not explored.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from ..curves.register import DPWarp, dp_warp
+from .aligned import Lambdas
+from .matching import match_children
+from .prepare import PreparedTree, child_positions
+from .refit import refit_to_children
+
+__all__ = ["Candidate", "LANDMARK_MIN_SHARE", "SERIAL_DP_BELOW", "rotate_rows", "solve"]
+
+
+@dataclass
+class Candidate:
+    """A registration candidate: matches (moving -> reference), warps of the moving branches, rotation."""
+
+    energy: float
+    match: dict[int, int]
+    gamma: np.ndarray  # (Nm, T)
+    O: Tensor  # (d, d) float64
+
+
+# children refits (refit.py) run only where the children's position terms are at least this share of the node's
+# cost (a negligible share cannot pay for the extra DP energies and matchings)
+LANDMARK_MIN_SHARE = 0.01
+# below this many pairs the serial DP kernel beats the thread-parallel one (thread start-up dominates)
+SERIAL_DP_BELOW = 256
+
+
+def _batched_dp(q1: Tensor, q2: Tensor, dp_opts: dict) -> DPWarp:
+    """One batched :func:`dp_warp` call, single-threaded for small batches (thread start-up dominates)."""
+    if len(q1) >= SERIAL_DP_BELOW:
+        return dp_warp(q1, q2, **dp_opts)
+    try:
+        import numba
+    except ImportError:  # pragma: no cover - torch backend
+        return dp_warp(q1, q2, **dp_opts)
+    before = numba.get_num_threads()
+    numba.set_num_threads(1)  # thread-local setting: does not affect other threads
+    try:
+        return dp_warp(q1, q2, **dp_opts)
+    finally:
+        numba.set_num_threads(before)
+
+
+def rotate_rows(x: Tensor, O: Tensor) -> Tensor:
+    """``x @ O.T`` for ``x (..., d)``, elementwise: tiny batched matmuls wake torch's thread pool, which costs
+    milliseconds per call on a busy machine."""
+    return (x.unsqueeze(-2) * O).sum(-1)
+
+
+
+def solve(movs: Sequence[PreparedTree], refs: Sequence[PreparedTree], jobs: Sequence[tuple[int, int, Tensor]],
+          lambdas: Sequence[Lambdas], dp_opts: dict, prune: bool, max_depth: int | None = None,
+          landmarks: bool = True, positions: str = "warped", order_tol: float | None = None) -> list[Candidate]:
+    """One :class:`Candidate` per job: warps + matchings for fixed rotations.
+
+    ``jobs[k] = (moving index, reference index, O (d, d))``; ``lambdas[m]`` are the weights of moving tree ``m``
+    (each pair may have its own ``lp``; the DP warps do not depend on the weights, so pairs of different weights
+    share the batched DP calls). ``dp_opts`` are :func:`~torch4dtree.curves.dp_warp` settings.
+
+    ``max_depth`` stops exploring pairs below that layer (their subtrees then count as unmatched): a cheap,
+    approximate solve used to rank starting rotations. ``landmarks`` refits each parent's warp to its
+    matched children (:func:`refit_to_children`; only with ``"warped"`` positions: otherwise a warp does not move
+    children). ``positions``: how children's places are compared (:func:`child_positions`). ``order_tol``: children's
+    matching, see :func:`match_children`.
+    """
+    landmarks = landmarks and positions == "warped"
+    T = movs[0].q.shape[1] + 1
+    grid = np.linspace(0.0, 1.0, T)
+    qrot = [rotate_rows(movs[m].q, O) for m, _, O in jobs]
+    # top-down: candidate pairs per depth, one batched DP per depth
+    level: list[tuple[int, int, int, float]] = [(k, 0, 0, 0.0) for k in range(len(jobs))]
+    levels: list[list[tuple[int, int, int, float]]] = []
+    info: dict[tuple[int, int, int], tuple[float, np.ndarray, np.ndarray]] = {}  # -> (E, gamma, children's s')
+    depth = 0
+    while level:
+        levels.append(level)
+        q1 = torch.stack([refs[jobs[k][1]].q[b] for k, _, b, _ in level])
+        q2 = torch.stack([qrot[k][a] for k, a, _, _ in level])
+        res = _batched_dp(q1, q2, dp_opts)
+        gam, E = res.gamma.numpy(), res.energy.numpy()
+        nxt: list[tuple[int, int, int, float]] = []
+        for p, (k, a, b, sa) in enumerate(level):
+            mov, ref = movs[jobs[k][0]], refs[jobs[k][1]]
+            lm, ls, lp = lambdas[jobs[k][0]]
+            if depth > 0 and prune and lp * (sa - ref.s[b]) ** 2 + ls * lm * E[p] >= ls * (mov.norm[a] + ref.norm[b]):
+                continue  # never better than leaving both unmatched: do not explore
+            ca, cb = mov.children[a], ref.children[b]
+            sc = child_positions(mov, ref, a, b, ca, gam[p], grid, positions)
+            info[(k, a, b)] = (float(E[p]), gam[p], sc)
+            if max_depth is not None and depth >= max_depth:
+                continue
+            for c, s_c in zip(ca, sc):
+                for e in cb:
+                    if prune:
+                        lb = lp * (s_c - ref.s[e]) ** 2 + ls * lm * (mov.sqrt_len[c] - ref.sqrt_len[e]) ** 2
+                        if lb >= ls * (mov.norm[c] + ref.norm[e]):
+                            continue
+                    nxt.append((k, c, e, float(s_c)))
+        level = nxt
+        depth += 1
+    # bottom-up: assignments from the children's costs
+    D: dict[tuple[int, int, int], float] = {}
+    assign: dict[tuple[int, int, int], list[tuple[int, int]]] = {}
+    for lev in reversed(levels):
+        for k, a, b, _ in lev:
+            key = (k, a, b)
+            if key not in info:
+                continue
+            E, _, sc = info[key]
+            mov, ref = movs[jobs[k][0]], refs[jobs[k][1]]
+            lm, ls, lp = lambdas[jobs[k][0]]
+            ca, cb = mov.children[a], ref.children[b]
+            total = lm * E
+            if not ca or not cb:
+                total += ls * (sum(mov.norm[c] for c in ca) + sum(ref.norm[e] for e in cb))
+                assign[key] = []
+            else:
+                # the children's matching costs: subtree part (inf where pruned) + position part
+                sub = np.full((len(ca), len(cb)), np.inf)
+                for i, c in enumerate(ca):
+                    for j, e in enumerate(cb):
+                        d_ce = D.get((k, c, e))
+                        if d_ce is not None:
+                            sub[i, j] = ls * d_ce
+                null_mov, null_ref = ls * mov.norm[ca], ls * ref.norm[cb]
+                s_ref = ref.s[cb]
+                cost, pairs = match_children(sub + lp * (sc[:, None] - s_ref[None, :]) ** 2, null_mov, null_ref,
+                                              sc, s_ref, order_tol)
+                total += cost
+                s_cost = lp * sum((sc[i] - s_ref[j]) ** 2 for i, j in pairs)  # the most a refit can save
+                if landmarks and pairs and s_cost > LANDMARK_MIN_SHARE * total:
+                    ref_q, mov_q = ref.q[b], qrot[k][a]
+                    total, pairs, E, gam_ab, sc = refit_to_children(
+                        ref_q, mov_q, info[key][1], mov.s[ca], s_ref, sub, null_mov, null_ref, pairs, total, lm,
+                        lp, order_tol)
+                    info[key] = (E, gam_ab, sc)
+                assign[key] = [(ca[i], cb[j]) for i, j in pairs]
+            D[key] = total
+    out = []
+    for k, (m, _, O) in enumerate(jobs):
+        gamma = np.tile(grid, (len(movs[m].parent), 1))
+        match: dict[int, int] = {}
+        stack = [(0, 0)]
+        while stack:
+            a, b = stack.pop()
+            match[a] = b
+            gamma[a] = info[(k, a, b)][1]
+            stack.extend(assign[(k, a, b)])
+        out.append(Candidate(D[(k, 0, 0)], match, gamma, O))
+    return out
+
