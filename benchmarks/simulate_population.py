@@ -6,7 +6,8 @@ its package data, ``plantbox/modelparameter/structural/plant/``) describe real s
 designed these shapes, so they test whether a generative model reproduces plants it did not help to invent.
 
 Each plant is one CPlantBox simulation (its own random seed: the parameter files' standard deviations apply) with a
-per-plant jitter of the growth rates and maximal lengths (a log-normal factor, ``--jitter``), observed on
+per-plant jitter of the growth rates and maximal lengths (a log-normal factor, ``--jitter``) and organs that
+start growing ``--plastochron`` days after they are created (so organs appear over time), observed on
 ``--frames`` irregular days between ``--first-day`` and ``--last-day`` (per plant jittered). Each frame is the shoot
 (stems and leaf midribs; roots and the seed dropped), a tree rooted at the stem base:
 
@@ -68,9 +69,11 @@ def frame_days(rng: np.random.Generator, frames: int, first: float, last: float)
     return days
 
 
-def make_plant(kind: str, seed: int, jitter: float) -> object:
+def make_plant(kind: str, seed: int, jitter: float, plastochron: float) -> object:
     """A CPlantBox plant of a kind, initialised, with the growth rate ``r`` and maximal length ``lmax`` of every
-    stem and leaf type scaled by per-plant log-normal factors (sd ``jitter``; ``lmax`` by half of it)."""
+    stem and leaf type scaled by per-plant log-normal factors (sd ``jitter``; ``lmax`` by half of it) and every
+    stem and leaf starting to grow ``plastochron / vigour`` days after it is created (``ldelay``): the example
+    files start every organ at once, so a plant would never add organs, which real shoots do."""
     import plantbox as pb
 
     rng = np.random.default_rng(seed)
@@ -81,6 +84,7 @@ def make_plant(kind: str, seed: int, jitter: float) -> object:
         for rp in plant.getOrganRandomParameter(ot):
             rp.r = rp.r * vigour
             rp.lmax = rp.lmax * size
+            rp.ldelay = plastochron / vigour
     plant.setSeed(seed)
     plant.initialize(False)
     return plant
@@ -140,12 +144,13 @@ def write_swc(path: Path, xyz: np.ndarray, parent: np.ndarray, label: np.ndarray
     path.write_text("\n".join(lines) + "\n")
 
 
-def simulate_plant(kind: str, seed: int, folder: Path, frames: int, jitter: float, spacing: float) -> dict:
+def simulate_plant(kind: str, seed: int, folder: Path, frames: int, jitter: float, spacing: float,
+                   plastochron: float) -> dict:
     """Grow one plant and write its sequence folder; returns its record for ``population.json``."""
     rng = np.random.default_rng(seed + 7919)
     _, first, last = KINDS[kind]
     days = frame_days(rng, frames, first, last)
-    plant = make_plant(kind, seed, jitter)
+    plant = make_plant(kind, seed, jitter, plastochron)
     folder.mkdir(parents=True, exist_ok=True)
     labels: dict[int, int] = {}
     times, nodes, now = {}, [], 0.0
@@ -169,7 +174,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--frames", type=int, default=10)
     ap.add_argument("--seed", type=int, default=0, help="plant i uses seed 1000 * seed + i + 1")
     ap.add_argument("--jitter", type=float, default=0.15, help="sd of the log growth-rate factor per plant")
-    ap.add_argument("--spacing", type=float, default=8.0, help="mm between kept chain nodes")
+    ap.add_argument("--spacing", type=float, default=10.0, help="mm between kept chain nodes")
+    ap.add_argument("--plastochron", type=float, default=2.0, help="days from an organ's creation to its growth")
     ap.add_argument("--out", required=True)
     a = ap.parse_args(argv)
     out = Path(a.out)
@@ -181,7 +187,8 @@ def main(argv: list[str] | None = None) -> None:
         with open(os.devnull, "w") as null:
             os.dup2(null.fileno(), 1)
             try:
-                rec = simulate_plant(a.kind, seed, out / f"{a.kind}_{i:02d}", a.frames, a.jitter, a.spacing)
+                rec = simulate_plant(a.kind, seed, out / f"{a.kind}_{i:02d}", a.frames, a.jitter, a.spacing,
+                                     a.plastochron)
             finally:
                 sys.stdout.flush()
                 os.dup2(stdout, 1)
@@ -193,7 +200,8 @@ def main(argv: list[str] | None = None) -> None:
 
     meta = {"format": "cplantbox-population", "kind": a.kind, "parameter_file": KINDS[a.kind][0],
             "cplantbox": getattr(plantbox, "__version__", "2.1.1"), "seed": a.seed, "frames": a.frames,
-            "jitter": a.jitter, "spacing_mm": a.spacing, "units": "mm, z up, base at the origin",
+            "jitter": a.jitter, "spacing_mm": a.spacing, "plastochron_days": a.plastochron,
+            "units": "mm, z up, base at the origin",
             "type_column": "organ label: 1 + the organ's rank in order of appearance in its plant",
             "plants": records}
     (out / "population.json").write_text(json.dumps(meta, indent=1) + "\n")
