@@ -6,13 +6,14 @@ import json
 import os
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
-from torch4dtree.data.writing import run_synth
+from torch4dtree.evaluate import EvalSettings, generative, load_eval_data
 from torch4dtree.evaluate.morphometrics import (
     AGES,
     FEATURES,
@@ -29,12 +30,9 @@ YARDSTICK = Path(__file__).resolve().parents[2].parent / "shared" / "tools" / "m
 
 
 @pytest.fixture(scope="module")
-def folders(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+def folders(synthetic_folder: Callable[..., Path]) -> tuple[Path, Path]:
     """Two small synthetic dataset folders of different kinds (the package's synth writer)."""
-    root = tmp_path_factory.mktemp("morpho")
-    a = run_synth("tomato", plants=4, seed=0, out=str(root / "tomato"), frames=5)
-    b = run_synth("bean", plants=5, seed=1, out=str(root / "bean"), frames=4)
-    return Path(a), Path(b)
+    return synthetic_folder(4, 0, 5), synthetic_folder(5, 1, 4, kind="bean")
 
 
 def scaled_copy(src: Path, dst: Path, scale: float) -> Path:
@@ -135,3 +133,20 @@ def test_a_lost_organ_shows(folders: tuple[Path, Path]) -> None:
     r = compare_populations(population_curves(seqs), population_curves(pruned))
     assert r["features"]["tips@1.0"]["ratio"] < 0.5 and r["features"]["length@1.0"]["ratio"] < 0.9
     assert r["features"]["height@0.0"]["ratio"] <= 1.0
+
+
+def test_the_generative_section_reports_morphometrics(synthetic_folder: Callable[..., Path]) -> None:
+    """``evaluate --sections generative``: each generator's samples compared with the held-out plants."""
+    datas = {"synthetic": load_eval_data(synthetic_folder(5, 0, 5), "synthetic", T=16)}
+    out = generative.run(datas, EvalSettings(T=16, quick=True), False)["generative"]
+    kind = out["kinds"]["tomato"]
+    fold = kind["folds"][0]["morphometrics"]
+    assert set(fold) == set(kind["morphometrics"]) == set(generative.GENERATORS)
+    for name, r in fold.items():
+        assert r["real_plants"] == len(kind["folds"][0]["held_out"])
+        assert r["samples"] == (len(kind["folds"][0]["train"]) if name == "memorise" else
+                                1 if name == "mean" else generative.QUICK_MORPHO_SAMPLES)
+        assert 0 <= r["ks_max"] <= 1 and 0 <= r["one_nna"] <= 1 and 0 <= r["worst_ratio"] <= 1
+    # the memorised training plants are real plants of the same kind: their sizes are those of the held-out ones
+    assert fold["memorise"]["features"]["length@1.0"]["ratio"] == pytest.approx(1, abs=0.5)
+    assert any("Morphometrics" in line for line in generative.markdown({"generative": out}))
