@@ -46,6 +46,8 @@ KINDS = {
 }
 STEM, LEAF = 3, 4  # CPlantBox organ types kept (1 seed, 2 root dropped)
 CM_TO_MM = 10.0
+MIN_ORGAN = 2.0  # mm: shorter organs are left out (just created, not yet seen by a scanner)
+MIN_EDGE = 0.01  # mm: shorter edges would vanish in the files' 3 decimals and make zero-length branches
 
 
 def parameter_file(kind: str) -> Path:
@@ -90,11 +92,12 @@ def make_plant(kind: str, seed: int, jitter: float, plastochron: float) -> objec
     return plant
 
 
-def shoot_skeleton(plant: object, labels: dict[int, int], spacing: float
+def shoot_skeleton(plant: object, labels: dict[int, int], spacing: float, min_organ: float = MIN_ORGAN
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The plant's shoot now: ``xyz (n, 3)`` mm (base at the origin), ``parent (n,)`` (-1 at the base), ``label
-    (n,)``; chains thinned to about ``spacing`` mm. ``labels`` maps CPlantBox organ ids to labels, extended here
-    in order of appearance."""
+    (n,)``; chains thinned to about ``spacing`` mm; organs shorter than ``min_organ`` mm (not yet visible to a
+    scanner) left out with what they carry. ``labels`` maps CPlantBox organ ids to labels, extended here in order
+    of appearance."""
     nodes = np.array([[v.x, v.y, v.z] for v in plant.nodes]) * CM_TO_MM
     segs = np.array([[s.x, s.y] for s in plant.segments], dtype=int).reshape(-1, 2)
     keep = np.isin(np.array(plant.organTypes), (STEM, LEAF))
@@ -102,10 +105,14 @@ def shoot_skeleton(plant: object, labels: dict[int, int], spacing: float
     if len(segs) == 0:
         raise RuntimeError("no shoot yet")
     lab: dict[int, int] = {}
+    hidden: set[int] = set()
     for organ in sorted(plant.getOrgans(STEM) + plant.getOrgans(LEAF), key=lambda o: o.getId()):
+        own = [int(n) for n in list(organ.getNodeIds())[1:]]  # the first node is the parent organ's
+        if organ.getLength(True) * CM_TO_MM < min_organ:
+            hidden.update(own)
+            continue
         label = labels.setdefault(int(organ.getId()), len(labels) + 1)
-        for n in list(organ.getNodeIds())[1:]:  # the first node is the parent organ's
-            lab[int(n)] = label
+        lab.update(dict.fromkeys(own, label))
     par = {int(c): int(p) for p, c in segs}
     roots = {int(p) for p, _ in segs} - set(par)
     if len(roots) != 1:
@@ -113,7 +120,10 @@ def shoot_skeleton(plant: object, labels: dict[int, int], spacing: float
     base = roots.pop()
     children: dict[int, list[int]] = {}
     for c, p in par.items():
-        children.setdefault(p, []).append(c)
+        if c not in hidden:
+            children.setdefault(p, []).append(c)
+    if base not in children:
+        raise RuntimeError("no visible shoot yet")
     lab[base] = lab[min(children[base])]
     # thin chains: keep the base, branch points, tips and a node every ~spacing mm of arc length
     out_ids, out_par = [base], [-1]
@@ -128,6 +138,9 @@ def shoot_skeleton(plant: object, labels: dict[int, int], spacing: float
                 if len(kids) != 1 or arc >= spacing or lab[kids[0]] != lab[node]:
                     break
                 prev, node = node, kids[0]
+            if arc < MIN_EDGE:  # the same point as the chain's start: its children hang there
+                stack.append((node, row))
+                continue
             out_ids.append(node)
             out_par.append(row)
             stack.append((node, len(out_ids) - 1))
