@@ -1,4 +1,4 @@
-"""Cross-plant identity precision / recall on four plant sets per kind (issue 11's ">= 85 % across plants").
+"""Cross-plant identity precision / recall on four plant sets per kind (target: >= 85 % across plants).
 
 Sets: ``synthetic_plant(kind, seed)`` for seeds 0-5 (``p0``, = ``identity_accuracy``'s cross rows) and 6-11 (``p6``),
 ``synthetic_dataset(kind, 6, 0)`` (``d0``) and ``(kind, 6, 1)`` (``d1``); every pair of the 6 plants at each frame

@@ -1,4 +1,4 @@
-"""register_trees' default ``positions`` (issue 11): the SPEC's warped parameters against node ranks, side by side.
+"""register_trees' default ``positions``: the paper's warped parameters against node ranks, side by side.
 
     PYTHONPATH=. python benchmarks/bench_default_positions.py [identities] [cycle] [speed] [--seeds 6]
 
@@ -51,8 +51,8 @@ def cycle() -> None:
         for pos in POSITIONS:
             spatial.register_trees = lambda *a, _p=pos, **k: registration.register_trees(*a, positions=_p, **k)
             for kind in data.kinds:
-                r = spatial._cycle(data, kind, EvalSettings(), 256, False)
-                t1 = spatial._registration_3d(data, kind, EvalSettings(), False)
+                r = spatial.cycle_table(data, kind, EvalSettings(), 256, False)
+                t1 = spatial.registration_3d(data, kind, EvalSettings(), False)
                 null = {e: round(100 * r["null_at_base"][e]["mean"], 2) for e in ("0.1", "0.05", "0.02", "0.01")}
                 print(f"{pos:6} {kind:6}: {r['pairs']} pairs, null-matched length {100 * r['unmatched']['mean']:.2f} %"
                       f", mapped {100 * r['mapped']['0.1']['mean']:.2f} % at eps 0.1, null at base {null}; Table 1 "

@@ -1,4 +1,4 @@
-"""Forecast against its baselines on held-out synthetic plants, over dataset seeds (issue 13).
+"""Forecast against its baselines on held-out synthetic plants, over dataset seeds.
 
 Setting of ``tests/test_model.py::test_forecast_beats_baselines``: ``synthetic_dataset(kind, plants=12, seed=s,
 n_frames=6, T=16)``, fit ``FourDTreeModel(n_t=16)`` on the first 7 plants, forecast the last 5 from their first

@@ -17,15 +17,10 @@ from pathlib import Path
 import numpy as np
 
 from torch4dtree.io import LoadOptions, read_sequence
-from torch4dtree.render.frames import (
-    RenderOptions,
-    _prepare,
-    _render_frames,
-    _time_index,
-    _tree_geometry,
-    render_sequence,
-    save_video,
-)
+from torch4dtree.render.camera import prepare_camera
+from torch4dtree.render.frames import RenderOptions, render_sequence, save_video, time_index
+from torch4dtree.render.geometry import tree_geometry
+from torch4dtree.render.gl import draw_frames
 
 PHENO4D = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "pheno4d"
 
@@ -75,14 +70,14 @@ def main() -> None:
 
     opts = RenderOptions(size=args.size)
     t0 = time.perf_counter()
-    framing, r0, rmin = _prepare([fr], args.frames, opts)
-    geoms = _tree_geometry(fr, opts, r0, rmin)
+    framing, r0, rmin = prepare_camera([fr], args.frames, opts)
+    geoms = tree_geometry(fr, opts, r0, rmin)
     t_mesh = time.perf_counter() - t0
     n_tri = sum(len(g.faces) for g in geoms)
 
-    which = _time_index(seq.times.double().numpy(), args.frames)
+    which = time_index(seq.times.double().numpy(), args.frames)
     t0 = time.perf_counter()
-    frames = _render_frames(geoms, which, framing, opts)
+    frames = draw_frames(geoms, which, framing, opts)
     t_frames = time.perf_counter() - t0
 
     # the public call end to end (what a user pays after loading), orbit so every frame is drawn

@@ -1,4 +1,4 @@
-"""Issue 11's must-holds for the registration on Pheno4D, runnable against any commit (set PYTHONPATH to its tree):
+"""The registration's targets on Pheno4D (set PYTHONPATH to the tree to measure):
 
 * ``cycle``: evaluate's Table 2 on the ``.mat`` trees at T = 256 (64 consecutive pairs, kinds pooled): share of
   mapped points / of all points whose A -> B -> A round trip misses by more than eps x the height;
@@ -6,8 +6,6 @@
   ``register4d`` of the first two tomato plants, one thread, minimum over ``--repeats``.
 
     PYTHONPATH=. python benchmarks/bench_symmetric.py [cycle] [speed] [--repeats 3] [--data DIR]
-
-Uses only the public API that existed before ``symmetric`` (so older commits run it unchanged).
 """
 
 from __future__ import annotations
@@ -20,28 +18,18 @@ import numpy as np
 import torch
 
 from torch4dtree.evaluate.data import EvalSettings, load_eval_data
-from torch4dtree.evaluate.spatial import _frames_at, consecutive_pairs
+from torch4dtree.evaluate.spatial import consecutive_pairs, cycle_table
 from torch4dtree.temporal import register4d
-from torch4dtree.trees.correspondence import DEFAULT_EPS, cycle_consistency
+from torch4dtree.trees.correspondence import DEFAULT_EPS
 from torch4dtree.trees.registration import register_trees
 
 
 def cycle(data_dir: str) -> None:
     data = load_eval_data(data_dir, "mat", T=64)
     settings = EvalSettings()
-    mapped, every = [], []
-    for kind in data.kinds:
-        frames: dict = {}
-        for plant, k in consecutive_pairs(data, kind, settings):
-            fr = frames.setdefault(plant.name, _frames_at(plant, settings.T_cycle))
-            a, b = fr[k], fr[k + 1]
-            if a is None or b is None:
-                continue
-            cc = cycle_consistency(a, b, DEFAULT_EPS, forward=register_trees(a, b, settings.lambdas, "none"),
-                                   backward=register_trees(b, a, settings.lambdas, "none"))
-            mapped.append(cc.error.numpy())
-            every.append(cc.error_all.numpy())
-    for name, rows in (("mapped", mapped), ("all", every)):
+    tables = [cycle_table(data, kind, settings, settings.T_cycle, False) for kind in data.kinds]
+    for name in ("mapped", "all"):
+        rows = [r for t in tables for r in t["per_pair"][name]]
         print(f"cycle consistency ({name}, {len(rows)} pairs, T = {settings.T_cycle}), eps {DEFAULT_EPS}: "
               + " / ".join(f"{100 * x:.2f} %" for x in np.mean(rows, 0)))
 

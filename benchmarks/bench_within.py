@@ -1,4 +1,4 @@
-"""Within-sequence identities against the synthetic organ truth (issue 12's must-hold: >= 95 % per pair and over
+"""Within-sequence identities against the synthetic organ truth (target: >= 95 % per pair and over
 whole sequences), on 14 plants per kind: ``synthetic_dataset(kind, 8, 0)`` and ``synthetic_plant(kind, seed)`` for
 seeds 0-5 (10 frames, T = 32, ``register_sequence``'s defaults).
 

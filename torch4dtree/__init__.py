@@ -20,7 +20,9 @@ _TEMPORAL = ("register4d",)
 # public name -> the subpackage that defines it
 _EXPORTS = {**dict.fromkeys(_CURVES, "curves"), **dict.fromkeys(_TREES, "trees"), **dict.fromkeys(_MODEL, "model"),
             **dict.fromkeys(_TEMPORAL, "temporal")}
-_SUBPACKAGES = ("bench", "cli", "config", "curves", "data", "io", "model", "render", "space", "temporal", "trees")
+# every subpackage and top-level module, reachable as ``torch4dtree.NAME`` after a bare ``import torch4dtree``
+_SUBPACKAGES = ("bench", "cli", "config", "curves", "data", "evaluate", "io", "model", "render", "settings", "space",
+                "temporal", "trees")
 
 __all__ = [
     "AlignedTrees", "FourDTreeModel", "TreeError", "TreeSequence", "Trees", "curve_length", "cycle_consistency",

@@ -1,4 +1,4 @@
-"""``torch4dtree benchmark all``: the benchmarks of steps 2-6 in one run, with ratios against the references.
+"""``torch4dtree benchmark all``: every benchmark in one run, with ratios against the references.
 
 Sections (each the dict of its own benchmark): ``curves`` (:func:`.curves.benchmark_curves`: curve registration
 vs fdasrsf, which is only importable in the benchmark venv, ``benchmarks/requirements.txt``), ``trees``
@@ -14,7 +14,6 @@ are ``None`` when the reference is not available (fdasrsf not installed, data mi
 
 from __future__ import annotations
 
-import statistics
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -43,6 +42,7 @@ QUICK: dict[str, dict[str, Any]] = {
 def _temporal_one_pair(pairs: int, n_t: int, k: int) -> dict[str, float]:
     """One temporal registration per call (as the paper times it), mean and median over ``pairs`` warped pairs; the
     moving trajectory is passed finer, as ``register4d`` passes it."""
+    from ..evaluate.stats import summary
     from ..temporal.registration import register_trajectories
     from ..temporal.trajectory import OVERSAMPLE
     from .temporal import warped_trajectory_pairs
@@ -54,7 +54,7 @@ def _temporal_one_pair(pairs: int, n_t: int, k: int) -> dict[str, float]:
         t0 = time.perf_counter()
         register_trajectories(ref[i], mov[i])
         times.append(time.perf_counter() - t0)
-    return {"mean": statistics.fmean(times), "median": statistics.median(times), "n": pairs, "n_t": n_t, "k": k}
+    return {**summary(times), "n_t": n_t, "k": k}
 
 
 def _ratio(ours: float | None, reference_s: float | None, reference: str, what: str) -> dict[str, Any]:
@@ -130,7 +130,7 @@ def benchmark_all(root: str | Path | None = None, quick: bool = False,
     """Run every section (module doc) at the :data:`FULL` (or :data:`QUICK`) sizes; ``root`` is the Pheno4D folder
     (``mat/`` and / or ``swc/`` inside; default :func:`.trees.default_data_root`). ``log`` gets a line per section."""
     from ..curves.dp_numba import warm_up
-    from ..evaluate.run import machine
+    from ..evaluate.report import machine
     from .curves import benchmark_curves
     from .fourd import benchmark_4d
     from .model import benchmark_model

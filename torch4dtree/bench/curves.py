@@ -22,8 +22,12 @@ from ..curves.register import dp_warp, register_curves
 from ..curves.rotation import random_rotation
 from ..curves.srvf import curve_length, resample_polylines, srvf, srvf_sq_distance, warp_curve
 from ..curves.warps import random_warp
+from ..evaluate.stats import summary
 
 __all__ = ["benchmark_curves", "curve_pairs", "pheno4d_paths", "smooth_random_curves"]
+
+MIN_LENGTH = 1e-12  # a path of coincident points keeps a finite scale
+TIE_TOL = 1e-9  # relative: an energy within rounding of the reference's is "not worse"
 
 
 def smooth_random_curves(B: int, T: int, d: int = 3, generator: torch.Generator | None = None,
@@ -80,7 +84,7 @@ def pheno4d_paths(root: str | Path, T: int, per_file: int = 4, min_nodes: int = 
     counts = torch.tensor([len(p) for p in paths])
     beta = resample_polylines(pts, counts, T)
     beta = beta - beta[:, :1]
-    return beta / curve_length(beta).clamp_min(1e-12)[:, None, None]
+    return beta / curve_length(beta).clamp_min(MIN_LENGTH)[:, None, None]
 
 
 def curve_pairs(kind: str, B: int, T: int, generator: torch.Generator,
@@ -195,14 +199,10 @@ def _set_threads(n: int | None) -> int | None:
     return before
 
 
-def _stats(x: list[float]) -> dict[str, float]:
-    return {"mean": statistics.fmean(x), "median": statistics.median(x), "n": len(x)}
-
-
 def _compare(e_o: Tensor, e_f: Tensor) -> dict[str, float]:
     """Mean energy ratio (mean of ours / mean of theirs) and the share of pairs where ours is not worse."""
     return {"ratio_of_means": float(e_o.mean() / e_f.mean()),
-            "not_worse": float((e_o <= e_f * (1 + 1e-9)).double().mean())}
+            "not_worse": float((e_o <= e_f * (1 + TIE_TOL)).double().mean())}
 
 
 # runs of the batched call per kind and thread setting (median reported), interleaved
@@ -289,8 +289,8 @@ def benchmark_curves(pairs: int = 1000, T: int = 100, fdasrsf_pairs: int = 40, s
                 Rs.append(R)
                 gi.append(gm2)
                 Ri.append(R2)
-        k["ours_s_per_pair"] = _stats(t_o)
-        k["ours_cpu_s_per_pair"] = _stats(c_o)
+        k["ours_s_per_pair"] = summary(t_o)
+        k["ours_cpu_s_per_pair"] = summary(c_o)
         pooled["t_ours"] += t_o
         pooled["c_ours"] += c_o
         if cf is not None and n > 0:
@@ -300,8 +300,8 @@ def benchmark_curves(pairs: int = 1000, T: int = 100, fdasrsf_pairs: int = 40, s
             e_f, f_f = _our_energy(m, r, G, Rt), fine_energy(m, r, G, Rt)
             e_i, f_i = _our_energy(m, r, GI, RI), fine_energy(m, r, GI, RI)
             pooled["c_fda"] += c_f
-            k.update({"fdasrsf_s_per_pair": _stats(t_f), "fdasrsf_iterated_s_per_pair": _stats(t_i),
-                      "fdasrsf_cpu_s_per_pair": _stats(c_f),
+            k.update({"fdasrsf_s_per_pair": summary(t_f), "fdasrsf_iterated_s_per_pair": summary(t_i),
+                      "fdasrsf_cpu_s_per_pair": summary(c_f),
                       "grid_vs_fdasrsf": _compare(e_o, e_f), "fine_vs_fdasrsf": _compare(f_o, f_f),
                       "grid_vs_fdasrsf_iterated": _compare(e_o, e_i), "fine_vs_fdasrsf_iterated": _compare(f_o, f_i),
                       "fine_over_grid": {"ours": float(f_o.mean() / e_o.mean()),
@@ -314,14 +314,14 @@ def benchmark_curves(pairs: int = 1000, T: int = 100, fdasrsf_pairs: int = 40, s
                 pooled[key] += v
         per_kind[kind] = k
     out["kinds"] = per_kind
-    allk: dict[str, Any] = {"ours_s_per_pair": _stats(pooled["t_ours"]),
-                            "ours_cpu_s_per_pair": _stats(pooled["c_ours"]),
+    allk: dict[str, Any] = {"ours_s_per_pair": summary(pooled["t_ours"]),
+                            "ours_cpu_s_per_pair": summary(pooled["c_ours"]),
                             "batched_1_thread_s_per_pair": statistics.median(pooled["b1"]),
                             f"batched_{threads}_threads_s_per_pair": statistics.median(pooled["bn"])}
     if pooled["t_fda"]:
         eo, ef, ei, fo, ff, fi = (torch.cat(pooled[x]) for x in ("eo", "ef", "ei", "fo", "ff", "fi"))
-        tf, ti, to = _stats(pooled["t_fda"]), _stats(pooled["t_fda_it"]), allk["ours_s_per_pair"]
-        cf_, co = _stats(pooled["c_fda"]), allk["ours_cpu_s_per_pair"]
+        tf, ti, to = summary(pooled["t_fda"]), summary(pooled["t_fda_it"]), allk["ours_s_per_pair"]
+        cf_, co = summary(pooled["c_fda"]), allk["ours_cpu_s_per_pair"]
         allk.update({"fdasrsf_s_per_pair": tf, "fdasrsf_iterated_s_per_pair": ti, "fdasrsf_cpu_s_per_pair": cf_,
                      "speedup_one_pair_by_means": tf["mean"] / to["mean"],
                      "speedup_one_pair_cpu_by_means": cf_["mean"] / co["mean"],
@@ -364,7 +364,8 @@ def _dp_only(cf: Any | None, g: torch.Generator, T: int, pairs: int) -> dict[str
     res: dict[str, Any] = {"T": T, "pairs": pairs}
     for name in names:
         G = torch.stack(gam[name])
-        res[name] = {"s_per_pair": _stats(times[name]), "energy_grid_mean": float(_our_energy(mov, ref, G, eye).mean()),
+        res[name] = {"s_per_pair": summary(times[name]),
+                     "energy_grid_mean": float(_our_energy(mov, ref, G, eye).mean()),
                      "energy_fine_mean": float(fine_energy(mov, ref, G, eye).mean())}
     if cf is None:
         res["fdasrsf"] = None

@@ -17,8 +17,8 @@ import torch
 
 from ..curves.srvf import resample_polylines
 from ..io import LoadOptions, read_sequence, read_swc_skeleton, read_tree
-from ..trees.registration import ORDER_TOL
-from ..trees.skeleton import HIERARCHIES, skeleton_to_branches
+from ..settings import CROSS_LP, CROSS_ORDER_TOL, CROSS_POSITIONS, HIERARCHIES
+from ..trees.skeleton import skeleton_to_branches
 
 
 def _dense(poly: np.ndarray, step: float = 0.5) -> np.ndarray:
@@ -67,30 +67,15 @@ def day_pairs(root: str | Path) -> list[tuple[str, Path, Path]]:
 
 JOINT = "straightest, joint over time"
 
-# Cross-plant registrations in identity_accuracy: the main branch's children compared by node rank (positions="rank":
-# the weighted count of nodes below a child), a strong position weight (lp per main-branch length: one node off
-# costs 1.2 x L) and order-preserving children's matching. Plants of a kind compared at one calendar frame are at
-# different developmental stages: shape matches organs of similar age, so a bean plant one trifoliate ahead
-# registered one node shifted and turned by 180 degrees (alternate leaves), its side shoots then matching the other
-# plant's in the opposite axil, at a LOWER distance than the truth (d0 frame 9, plants 1 / 2: 37.3 vs 40.5 from the
-# true rotation, rank lp 6). Arc length from the parent's base does not stay put across stages (internodes
-# stretch; young organs ride the apex, so their arc lengths differ by the stems' difference); node k of one plant
-# is node k of the other. Measured (T = 32, frames 3 / 6 / 9, 45 pairs per set; sets: synthetic_plant seeds 0-5,
-# 6-11, synthetic_dataset(kind, 6, 0) and (kind, 6, 1); precision / recall %, pooled over the four):
-#   bean    arclength lp 60: 86.9/91.0 (sets 86.7/90.8, 87.4/88.1, 82.7/89.0, 91.5/96.3); + ordered 90.0/91.4;
-#           arclength lp 120 / 240 + ordered: 92.1/90.0 / 92.5/84.5 (recall lost on young organs);
-#           rank lp 12 + ordered: 92.9/99.8 (sets 95.5/100, 92.5/100, 91.3/99.4, 92.5/100)
-#   tomato  arclength lp 60: 92.7/93.3 (sets down to 89.6/92.0); rank lp 12 + ordered 95.5/98.7
-#   maize   arclength lp 60: 100/99.9; rank lp 12 + ordered 100/100
-# (benchmarks/README.md, "Cross-plant identities", has the rest.) Consecutive frames keep the within-sequence
-# setting (warped, lp 9): their young organs move along the stem.
-CROSS_PLANT_LP = 12.0
-CROSS_PLANT_POSITIONS = "rank"
-CROSS_PLANT_ORDER_TOL: float | None = ORDER_TOL
+# Cross-plant registrations in identity_accuracy use the cross-sequence settings (torch4dtree.settings): children
+# compared by node rank, a strong relative position weight and order-preserving children's matching, because plants
+# of a kind compared at one calendar frame are at different developmental stages and node k of one plant is node k
+# of the other. Consecutive frames keep the within-sequence setting (warped, lp 9): their young organs move along
+# the stem.
 
 
-def registration_settings(lp: float | None = CROSS_PLANT_LP, positions: str = CROSS_PLANT_POSITIONS,
-                          order_tol: float | None = CROSS_PLANT_ORDER_TOL) -> dict:
+def registration_settings(lp: float | None = CROSS_LP, positions: str = CROSS_POSITIONS,
+                          order_tol: float | None = CROSS_ORDER_TOL) -> dict:
     """Keyword arguments of :func:`~torch4dtree.trees.registration.register_trees` (default: the cross-plant
     pairs'); ``lp``: relative, ``None``: ``lp = 1`` in the data's units."""
     if lp is None:
@@ -149,31 +134,24 @@ def main_branch_agreement(root: str | Path, rules: tuple[str, ...] = (*HIERARCHI
     return out
 
 
-if __name__ == "__main__":  # pragma: no cover
-    import json
-    import sys
-
-    print(json.dumps(main_branch_agreement(sys.argv[1] if len(sys.argv) > 1 else "../shared/data/pheno4d"), indent=1))
-
-
 def identity_accuracy(kinds: tuple[str, ...] = ("tomato", "maize", "bean"), seeds: tuple[int, ...] = (0, 1, 2),
                       rules: tuple[str, ...] = HIERARCHIES, lp_per_length: tuple[float | None, ...] = (9.0,),
                       n_frames: int = 10, T: int = 32, cross_plant: bool = True,
                       joint_hierarchy: bool = True, positions: str = "warped",
-                      cross_lp_per_length: float | None = CROSS_PLANT_LP,
-                      cross_positions: str | None = CROSS_PLANT_POSITIONS,
-                      cross_order_tol: float | None = CROSS_PLANT_ORDER_TOL) -> list[dict]:
+                      cross_lp_per_length: float | None = CROSS_LP,
+                      cross_positions: str | None = CROSS_POSITIONS,
+                      cross_order_tol: float | None = CROSS_ORDER_TOL) -> list[dict]:
     """Identity precision / recall of registrations of realistic synthetic plants against their organ truth.
 
     For every kind, hierarchy rule and relative position weight (``lp_per_length``: the relative ``lp``,
-    9 = within-sequence registration's default; ``None``: ``lp = 1`` in the data's units, the old default):
+    9 = within-sequence registration's default; ``None``: ``lp = 1`` in the data's units):
     consecutive frames of each plant (``seeds`` plants) and, with ``cross_plant``, the same frame of two
     different plants (frames 3, 6, 9; vertical rotation). ``joint_hierarchy``: main branches chosen jointly over
     time (:mod:`torch4dtree.trees.growth`, the default) or by the rule on each frame alone. ``positions``: how
     children's places are compared (:func:`~torch4dtree.trees.registration.register_to_reference`);
     ``cross_lp_per_length`` / ``cross_positions``: the cross-plant pairs' settings (default
-    :data:`CROSS_PLANT_LP`, :data:`CROSS_PLANT_POSITIONS`; ``None``: the consecutive pairs' ones);
-    ``cross_order_tol``: their children's matching (default ordered, :data:`CROSS_PLANT_ORDER_TOL`; ``None``: any).
+    :data:`CROSS_LP`, :data:`CROSS_POSITIONS`; ``None``: the consecutive pairs' ones);
+    ``cross_order_tol``: their children's matching (default ordered, :data:`CROSS_ORDER_TOL`; ``None``: any).
     Rows are ``{kind, rule, joint_hierarchy, lp_per_length, positions, consecutive: {precision, recall, pairs},
     cross: {..., lp_per_length, positions, order_tol}, seconds}``, micro-averaged (counts pooled).
     """
@@ -219,3 +197,10 @@ def identity_accuracy(kinds: tuple[str, ...] = ("tomato", "maize", "bean"), seed
                 row["seconds"] = time.perf_counter() - t0
                 rows.append(row)
     return rows
+
+
+if __name__ == "__main__":  # pragma: no cover
+    import json
+    import sys
+
+    print(json.dumps(main_branch_agreement(sys.argv[1] if len(sys.argv) > 1 else "../shared/data/pheno4d"), indent=1))

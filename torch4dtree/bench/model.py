@@ -13,15 +13,17 @@ on a small synthetic set (no data needed), then timed:
 
 from __future__ import annotations
 
-import statistics
 import time
 from typing import Any
 
 import torch
 
+from ..evaluate.paper import SECONDS
+from ..evaluate.stats import summary
+
 __all__ = ["PAPER_SECONDS", "benchmark_model"]
 
-PAPER_SECONDS = {"mean": 0.0006, "sample": 0.0001}
+PAPER_SECONDS = {"mean": SECONDS["mean_4d"], "sample": SECONDS["sample"]}
 
 
 def benchmark_model(plants: int = 5, frames: int = 8, T: int = 32, n_t: int = 32, kind: str = "tomato",
@@ -61,8 +63,7 @@ def benchmark_model(plants: int = 5, frames: int = 8, T: int = 32, n_t: int = 32
         "plants": plants, "frames": frames, "T": T, "n_t": n_t, "kind": kind, "modes": model.n_modes,
         "slots": model.report_["population"]["slots"], "tree_components": model.population.k,
         "fit_seconds": fit_s, "fit_stage_seconds": model.report_["seconds"],
-        "mean_seconds": {"mean": statistics.fmean(mean_s), "median": statistics.median(mean_s), "n": repeats},
-        "sample_one_seconds": {"mean": statistics.fmean(one), "median": statistics.median(one), "n": single},
+        "mean_seconds": summary(mean_s), "sample_one_seconds": summary(one),
         "sample_batched_seconds_per_plant": batch_s, "sample_batched_plants_per_s": 1.0 / batch_s,
         "batch": samples,
         "decode_seconds_per_plant": decode_s, "decode_frames_per_s": sum(len(s) for s in decoded) / (decode_s * decode),

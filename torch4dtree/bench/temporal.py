@@ -1,8 +1,7 @@
 """Benchmarks of the 4D half: temporal registration speed and warp recovery, within-sequence registration
 (identity accuracy on synthetic plants with ground truth, time on Pheno4D), and growth-clock recovery.
 
-Kept beside the code it measures until the lead moves it to ``torch4dtree/bench/temporal.py``. Every
-function returns a JSON-serialisable dict; ``python -m torch4dtree.bench.temporal [section ...]`` prints them.
+Every function returns a JSON-serialisable dict; ``python -m torch4dtree.bench.temporal [section ...]`` prints them.
 """
 
 from __future__ import annotations
@@ -20,18 +19,18 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ..curves.rotation import optimal_rotation
 from ..curves.srvf import interpolate_curve, srvf, srvf_sq_distance
 from ..curves.warps import invert_warp, random_warp
-from ..space.pca import principal_axes
+from ..evaluate.oracle import label_features, pca_trajectories
+from ..evaluate.paper import SECONDS
 from ..temporal.registration import register_trajectories, time_warp_trajectory
-from ..temporal.trajectory import OVERSAMPLE, fine_size, resample_trajectory
+from ..temporal.trajectory import OVERSAMPLE, fine_size
 from ..temporal.within import AlignedSequence, identity_accuracy, register_sequence
 
 __all__ = ["benchmark_growth_clocks", "benchmark_pheno4d_within", "benchmark_synthetic_within",
            "benchmark_temporal", "smooth_trajectories", "warped_trajectory_pairs"]
 
-PAPER_TEMPORAL_SECONDS = (0.006, 0.037)  # paper, Fig. 2: maize, tomato (MATLAB, one pair)
+PAPER_TEMPORAL_SECONDS = (SECONDS["temporal_maize"], SECONDS["temporal_tomato"])  # one pair: maize, tomato
 
 
 def smooth_trajectories(B: int, n_t: int, k: int, generator: torch.Generator, warp: Tensor | None = None,
@@ -166,34 +165,6 @@ def benchmark_pheno4d_within(root: str | Path | None = None, T: int = 64, lambda
 # ----------------------------------------------------------------------------- growth clocks
 
 
-def _label_features(seqs: Sequence, T: int) -> list[Tensor]:
-    """Per sequence ``(n_frames, F)``: the SRVF of every organ (ground-truth label; zeros where absent) and its
-    ``s``, in one layout shared by all sequences (an oracle layout that isolates the temporal registration).
-    Every sequence is first turned about the vertical to face the first one (plants grow in any azimuth):
-    the rotation is fitted on the organs common to their last frames."""
-    labels = sorted({int(v) for s in seqs for v in s.frames.label.tolist()})
-    col = {v: i for i, v in enumerate(labels)}
-    up = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)
-    qs = [srvf(s.frames.points.double()) for s in seqs]
-    last = [s.frames.tree_index == len(s) - 1 for s in seqs]
-    out = []
-    for s, q, lst in zip(seqs, qs, last):
-        f = s.frames
-        ref_lab = {int(v): i for i, v in zip(last[0].nonzero()[:, 0].tolist(), seqs[0].frames.label[last[0]].tolist())}
-        pairs = [(ref_lab[int(v)], i) for i, v in zip(lst.nonzero()[:, 0].tolist(), f.label[lst].tolist())
-                 if int(v) in ref_lab]
-        q1 = qs[0][[i for i, _ in pairs]].reshape(1, -1, 3)
-        q2 = q[[j for _, j in pairs]].reshape(1, -1, 3)
-        O = optimal_rotation(q1, q2, "vertical", up)[0]
-        tab = torch.zeros(len(s), len(labels), T - 1, f.dim, dtype=torch.float64)
-        pos = torch.zeros(len(s), len(labels), dtype=torch.float64)
-        idx = torch.tensor([col[int(v)] for v in f.label.tolist()])
-        tab[f.tree_index, idx] = q @ O.T
-        pos[f.tree_index, idx] = f.s.double()
-        out.append(torch.cat([tab.flatten(1) / math.sqrt(T - 1), pos], 1))
-    return out
-
-
 def _pipeline_features(a: AlignedSequence, b: AlignedSequence, lambdas: Sequence[float]) -> list[Tensor]:
     """Both sequences in sequence ``a``'s layout, as the pipeline would do it without labels: register ``b``'s
     representative onto ``a``'s (with a rotation about the vertical), carry ``b``'s matched slots (warped into
@@ -225,14 +196,6 @@ def _pipeline_features(a: AlignedSequence, b: AlignedSequence, lambdas: Sequence
     return [like.features(), fb]
 
 
-def _pca_trajectories(feats: list[Tensor], times: list[Tensor], k: int, n_t: int) -> list[Tensor]:
-    """Project every frame on the top ``k`` principal directions of all frames, resample on ``n_t`` times."""
-    allf = torch.cat(feats)
-    mean = allf.mean(0)
-    Vh = principal_axes(allf - mean)[1]
-    return [resample_trajectory((f - mean) @ Vh[:k].T, t.double(), n_t) for f, t in zip(feats, times)]
-
-
 def benchmark_growth_clocks(kind: str = "tomato", pairs: int = 6, n_frames: int = 10, T: int = 24, k: int = 5,
                             n_t: int = 32, lambdas: Sequence[float] = (1.0, 1.0, 50.0), layouts: Sequence[str] = (
                                 "labels", "pipeline")) -> dict:
@@ -256,12 +219,12 @@ def benchmark_growth_clocks(kind: str = "tomato", pairs: int = 6, n_frames: int 
         for p in range(pairs):
             a, b = plants[2 * p], plants[2 * p + 1]
             if layout == "labels":
-                feats = _label_features([a.sequence, b.sequence], T)
+                feats = label_features([a.sequence, b.sequence], T)
             else:
                 ala = register_sequence(a.sequence, lambdas=lambdas)
                 alb = register_sequence(b.sequence, lambdas=lambdas)
                 feats = _pipeline_features(ala, alb, lambdas)
-            ta, tb = _pca_trajectories(feats, [a.times, b.times], k, n_t)
+            ta, tb = pca_trajectories(feats, [a.times, b.times], k, n_t)
             t0 = time.perf_counter()
             r = register_trajectories(ta, tb)
             secs.append(time.perf_counter() - t0)

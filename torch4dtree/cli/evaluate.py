@@ -13,7 +13,7 @@ import argparse
 import shutil
 from pathlib import Path
 
-from ..config import CROSS_LP, CROSS_ORDER_TOL, CROSS_POSITIONS, POSITIONS
+from ..settings import CROSS_LP, CROSS_ORDER_TOL, CROSS_POSITIONS, POSITIONS
 from .options import UsageError, int_at_least
 
 SECTION_NAMES = ("spatial", "temporal", "generative", "truth", "robustness")
@@ -72,8 +72,7 @@ def _prepare_out(out: Path, overwrite: bool) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..evaluate import EvalSettings, evaluate
-    from ..evaluate.run import dumps
+    from ..evaluate import EvalSettings, dumps, evaluate
 
     sections = [s.strip() for s in args.sections.split(",") if s.strip()]
     unknown = [s for s in sections if s not in SECTION_NAMES]

@@ -10,7 +10,8 @@ import dataclasses
 from collections.abc import Callable
 from pathlib import Path
 
-from ..config import HIERARCHIES, ROTATIONS, Config, load_config
+from ..config import Config, load_config
+from ..settings import HIERARCHIES, ROTATIONS
 
 
 class UsageError(ValueError):

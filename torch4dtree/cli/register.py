@@ -7,7 +7,8 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from ..config import POSITIONS, Config
+from ..config import Config
+from ..settings import POSITIONS
 from .options import UsageError, add_config_arguments, check_output_file, config_from_args, int_at_least
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".gif", ".mp4")
@@ -30,7 +31,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_config_arguments(parser, registration=True)
     parser.add_argument("--positions", choices=POSITIONS, default=None,
                         help=f"how children's places on their parents are compared (default: {Config.positions}: "
-                             "node rank along the main branch; warped: the SPEC's parameter after the parent's warp, "
+                             "node rank along the main branch; warped: the paper's parameter after the parent's warp, "
                              "the layout's own metric; arclength: arc length from the parent's base)")
 
 

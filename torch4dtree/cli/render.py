@@ -86,11 +86,8 @@ def run(args: argparse.Namespace) -> int:
 
     from ..io import read_dataset, read_sequence, read_tree
     from ..io.dataset import is_sequence_folder
+    from ..render.camera import prepare_camera
     from ..render.frames import (
-        _compose,
-        _prepare,
-        _render_frames,
-        _tree_geometry,
         fit_size,
         format_time,
         render_grid,
@@ -99,6 +96,9 @@ def run(args: argparse.Namespace) -> int:
         save_image,
         save_video,
     )
+    from ..render.geometry import tree_geometry
+    from ..render.gl import draw_frames
+    from ..render.text import compose
 
     out: Path = args.out
     video = out.suffix.lower() in VIDEO_SUFFIXES
@@ -116,8 +116,8 @@ def run(args: argparse.Namespace) -> int:
         if video:  # one tree: turn around it
             n = args.frames or ORBIT_FRAMES
             opts = RenderOptions(size=size, **{**common, "view": "orbit"})
-            framing, r0, rmin = _prepare([tree], n, opts)
-            frames = _render_frames(_tree_geometry(tree, opts, r0, rmin), [0] * n, framing, opts)
+            framing, r0, rmin = prepare_camera([tree], n, opts)
+            frames = draw_frames(tree_geometry(tree, opts, r0, rmin), [0] * n, framing, opts)
             described = f"{n} frames, one turn"
         else:
             frames = render_trees(tree, size=size, **common)
@@ -128,7 +128,7 @@ def run(args: argparse.Namespace) -> int:
             size = args.size or fit_size([seq], 512, **common)
             frames = render_sequence(seq, n, size=size, interpolate=args.interpolate, **common)
             labels = _time_labels(seq.times, n)
-            frames = np.stack([_compose(f[None, None], None, None, args.title or seq.name, lab)
+            frames = np.stack([compose(f[None, None], None, None, args.title or seq.name, lab)
                                for f, lab in zip(frames, labels)])
             described = f"{n} frames from {format_time(float(seq.times[0]))} to {float(seq.times[-1]):g}"
         else:

@@ -1,4 +1,10 @@
-"""Synthetic growing plants with ground truth: the package's embedded default data (see :mod:`.synthetic`)."""
+"""Synthetic growing plants with organ ground truth: the package's embedded default data.
+
+:mod:`.synthetic` generates plants (built by :mod:`.clock`, :mod:`.kinds`, :mod:`.plant_model`,
+:mod:`.organ_curves`, :mod:`.scanning`; labels in :mod:`.labels`), :mod:`.writing` writes them as
+dataset folders, :mod:`.truth` scores registrations against their labels, and :mod:`.dataset` is a
+``torch.utils.data.Dataset`` over any dataset folder (imported on its own: it needs ``torch.utils.data``).
+"""
 
 from .synthetic import (
     KINDS,

@@ -1,17 +1,9 @@
 """A ``torch.utils.data.Dataset`` over a dataset folder (one 4D tree per item) and a padded collate.
 
-Example::
-
-    from torch.utils.data import DataLoader
-    from torch4dtree.data.dataset import TreeSequenceDataset, collate_sequences
-
-    ds = TreeSequenceDataset("data/synthetic_tomato", T=32)
-    loader = DataLoader(ds, batch_size=4, collate_fn=collate_sequences)
-    for batch in loader:
-        batch.points      # (B, F_max, N_max, T, 3): frame f of 4D tree b, its branches padded with zeros
-        batch.branch_mask # (B, F_max, N_max) bool: real branches
-        batch.times       # (B, F_max), batch.frame_mask (B, F_max) bool: real frames
-        batch.sequences   # the TreeSequences themselves (e.g. for FourDTreeModel.encode)
+4D trees differ in frames and branches, so a batch pads them to the largest and carries masks
+(:class:`SequenceBatch`), and keeps the sequences themselves for the package's own methods
+(e.g. :meth:`~torch4dtree.model.FourDTreeModel.encode`). ``examples/training_loop.py`` uses both in
+a training loop.
 """
 
 from __future__ import annotations
@@ -37,6 +29,18 @@ class TreeSequenceDataset(Dataset):
         T: points per branch after resampling; ``dtype``: of the points; other loading settings via ``options``
             (an :class:`~torch4dtree.io.LoadOptions`, overriding ``T`` and ``dtype`` when given).
         cache: keep the sequences read in memory.
+
+    Example:
+        >>> import tempfile
+        >>> from torch.utils.data import DataLoader
+        >>> from torch4dtree.data import synthetic_dataset, write_dataset
+        >>> root = write_dataset(synthetic_dataset("tomato", plants=2, n_frames=2, T=8), tempfile.mkdtemp())
+        >>> dataset = TreeSequenceDataset(root, T=8)
+        >>> len(dataset), dataset[0].name
+        (2, 'tomato_00')
+        >>> batch = next(iter(DataLoader(dataset, batch_size=2, collate_fn=collate_sequences)))
+        >>> batch.points.shape[:2], batch.points.shape[3:], batch.frame_mask.tolist()
+        (torch.Size([2, 2]), torch.Size([8, 3]), [[True, True], [True, True]])
     """
 
     def __init__(self, root: str | Path, T: int = 32, dtype: torch.dtype = torch.float32, options: object = None,
@@ -85,7 +89,20 @@ class SequenceBatch(NamedTuple):
 
 
 def collate_sequences(items: Sequence[TreeSequence]) -> SequenceBatch:
-    """Pad 4D trees into one :class:`SequenceBatch` (frames and branches padded with zeros / ``-1``)."""
+    """Pad 4D trees into one :class:`SequenceBatch` (frames and branches padded with zeros / ``-1``).
+
+    Example:
+        >>> import numpy as np
+        >>> from torch4dtree import Trees
+        >>> stem, leaf = np.array([[0.0, 0, 0], [0, 0, 10]]), np.array([[0.0, 0, 5], [4, 0, 8]])
+        >>> young = Trees.from_branches([[stem * 0.5]], [[-1]], T=8)
+        >>> grown = Trees.from_branches([[stem, leaf]], [[-1, 0]], T=8)
+        >>> one = TreeSequence(young, torch.tensor([0.0]))
+        >>> two = TreeSequence(Trees.cat([young, grown]), torch.tensor([0.0, 2.0]))
+        >>> batch = collate_sequences([one, two])
+        >>> batch.points.shape, batch.branch_mask.tolist()
+        (torch.Size([2, 2, 2, 8, 3]), [[[True, False], [False, False]], [[True, False], [True, True]]])
+    """
     if not items:
         raise ValueError("collate_sequences needs at least one 4D tree")
     T, d = items[0].frames.T, items[0].frames.dim

@@ -29,7 +29,8 @@ import numpy as np
 
 from ..io import write_text_safely
 from ..io.dataset import TIMES_MANIFEST
-from .synthetic import SPUR_LABEL, SyntheticPlant, synthetic_dataset
+from .labels import SPUR_LABEL
+from .synthetic import SyntheticPlant, synthetic_dataset
 
 DATASET_MANIFEST = "dataset.json"
 FORMAT = "torch4dtree-synthetic"
@@ -52,6 +53,13 @@ def write_skeleton_swc(
 
     Coordinates are written with 6 decimals (exact for the synthetic plants' 1e-4 mm grid).
     Refuses to replace a file unless ``overwrite``.
+
+    Example:
+        >>> import tempfile
+        >>> xyz = np.array([[0.0, 0, 0], [0, 0, 5], [0, 0, 10], [4, 0, 8]])
+        >>> path = write_skeleton_swc(Path(tempfile.mkdtemp()) / "plant.swc", xyz, [-1, 0, 1, 1], [0, 0, 0, 3])
+        >>> path.read_text().splitlines()[-1]
+        '4 3 4.000000 0.000000 8.000000 1.0 2'
     """
     xyz, parent, labels = np.asarray(xyz, dtype=np.float64), np.asarray(parent), np.asarray(labels)
     if (labels < 0).any():
@@ -64,7 +72,12 @@ def write_skeleton_swc(
 
 
 def frame_file_name(time: float, index: int) -> str:
-    """``day_007.swc`` for a whole-number time, else ``frame_03.swc`` (the manifest holds the time)."""
+    """``day_007.swc`` for a whole-number time, else ``frame_03.swc`` (the manifest holds the time).
+
+    Example:
+        >>> frame_file_name(7.0, 2), frame_file_name(7.5, 3)
+        ('day_007.swc', 'frame_03.swc')
+    """
     return f"day_{int(time):03d}.swc" if float(time).is_integer() and time >= 0 else f"frame_{index:02d}.swc"
 
 
@@ -106,6 +119,13 @@ def write_dataset(plants: Sequence[SyntheticPlant], out_dir: str | Path, overwri
     Refuses (``FileExistsError``) when ``out_dir`` exists and is not empty, unless ``overwrite``;
     then files of the same names are replaced and plant folders of an earlier synthetic dataset
     that are not rewritten lose their frames. Returns ``out_dir``.
+
+    Example:
+        >>> import tempfile
+        >>> from torch4dtree.data import synthetic_dataset
+        >>> out = write_dataset(synthetic_dataset("tomato", plants=2, n_frames=2, T=8), Path(tempfile.mkdtemp()) / "ds")
+        >>> sorted(p.name for p in out.iterdir())
+        ['dataset.json', 'tomato_00', 'tomato_01']
     """
     if not plants:
         raise ValueError("no plants to write")
@@ -172,6 +192,13 @@ def read_ground_truth(dataset_dir: str | Path) -> dict:
     Per plant (``["plants"]``, in folder order): ``folder``, ``seed``, ``times``,
     ``normalized_times``, ``bio_times``, ``growth_warp`` (``grid``, ``values``), ``labels_per_frame``
     and (format version 2) ``organs_per_frame``.
+
+    Example:
+        >>> import tempfile
+        >>> out = run_synth("maize", plants=1, seed=0, out=str(Path(tempfile.mkdtemp()) / "ds"), frames=2)
+        >>> truth = read_ground_truth(out)
+        >>> truth["kind"], [p["folder"] for p in truth["plants"]], len(truth["plants"][0]["times"])
+        ('maize', ['maize_00'], 2)
     """
     path = Path(dataset_dir) / DATASET_MANIFEST
     if not path.is_file():
@@ -188,5 +215,12 @@ def read_ground_truth(dataset_dir: str | Path) -> dict:
 
 
 def run_synth(kind: str, plants: int, seed: int, out: str, frames: int = 10, overwrite: bool = False) -> Path:
-    """What ``torch4dtree synth --kind K --plants N --seed S --out DIR`` does: generate and write a dataset."""
+    """What ``torch4dtree synth --kind K --plants N --seed S --out DIR`` does: generate and write a dataset.
+
+    Example:
+        >>> import tempfile
+        >>> out = run_synth("bean", plants=1, seed=0, out=str(Path(tempfile.mkdtemp()) / "ds"), frames=2)
+        >>> sorted(p.name for p in (out / "bean_00").iterdir())
+        ['day_000.swc', 'day_001.swc', 'times.json']
+    """
     return write_dataset(synthetic_dataset(kind, plants, seed, n_frames=frames), out, overwrite=overwrite)

@@ -1,4 +1,5 @@
-"""``torch4dtree evaluate DATA_DIR``: the paper's experiments (SPEC §7) and the generative model's quality, one command.
+"""``torch4dtree evaluate DATA_DIR``: the paper's experiments (docs/method.md §7) and the generative model's
+quality, one command.
 
 Each experiment is one module with the same two functions:
 
@@ -8,13 +9,18 @@ Each experiment is one module with the same two functions:
   hold ``timings``: ``{stage: {"seconds": ours, "paper_seconds": theirs or None, "what": "..."}}``.
 * ``markdown(result: dict) -> list[str]``: the report's lines for that result.
 
-:func:`evaluate` runs them in order and writes ``report.json`` and ``report.md`` (:mod:`.report`) with the figures.
-Error rates are fractions (0.0094 for 0.94 %).
+:func:`evaluate` (:mod:`.run`) runs them in order and writes ``report.json`` and ``report.md`` (:mod:`.report`)
+with the figures (:mod:`.figures`). Error rates are fractions (0.0094 for 0.94 %).
+
+Shared by every measurement of the package (the benchmarks of :mod:`torch4dtree.bench` too): :mod:`.stats` (the
+summary statistics and table helpers), :mod:`.paper` (the paper's timings), :mod:`.oracle` (the organ-label
+layout), :func:`.report.machine`. :mod:`.model_report` is the report of a fitted model (``torch4dtree fit``).
 """
 
 from __future__ import annotations
 
 from .data import EvalData, EvalSettings, Plant4D, load_eval_data, sources_of
+from .report import dumps
 from .run import SECTIONS, evaluate
 
-__all__ = ["SECTIONS", "EvalData", "EvalSettings", "Plant4D", "evaluate", "load_eval_data", "sources_of"]
+__all__ = ["SECTIONS", "EvalData", "EvalSettings", "Plant4D", "dumps", "evaluate", "load_eval_data", "sources_of"]

@@ -21,7 +21,7 @@ import torch
 
 from ..io import LoadOptions, read_sequence, sequence_folders
 from ..io.dataset import DatasetError
-from ..temporal.spatiotemporal import CROSS_LP, CROSS_ORDER_TOL, CROSS_POSITIONS
+from ..settings import CROSS_LP, CROSS_ORDER_TOL, CROSS_POSITIONS
 from ..trees.structures import TreeSequence
 
 __all__ = ["EvalData", "EvalSettings", "Plant4D", "load_eval_data", "primary_source", "sources_of"]
@@ -58,7 +58,12 @@ class EvalSettings:
     cross_order_tol: float | None = CROSS_ORDER_TOL
 
     def cross_args(self) -> dict:
-        """The cross-sequence registration settings as :func:`~torch4dtree.temporal.register4d` takes them."""
+        """The cross-sequence registration settings as :func:`~torch4dtree.temporal.register4d` takes them.
+
+        Example:
+            >>> EvalSettings(cross_lp=None).cross_args()
+            {'positions': 'rank', 'cross_lp': None, 'cross_order_tol': 0.02}
+        """
         return {"positions": self.cross_positions, "cross_lp": self.cross_lp, "cross_order_tol": self.cross_order_tol}
 
     def generator(self, offset: int = 0) -> torch.Generator:

@@ -7,7 +7,7 @@
   along the geodesic, columns are times; the top half before registration (index-order correspondence, identity
   time warp), the bottom half after the spatial and temporal registration. Colours are the common slots.
 * ``mean.png``, ``modes.png``, ``samples.png``: a :class:`~torch4dtree.model.FourDTreeModel` fitted on the plants
-  of one kind (:func:`torch4dtree.cli.fit.write_figures`).
+  of one kind (:func:`.model_report.write_model_figures`).
 
 :func:`line_plot` draws curves with Pillow (matplotlib is not a dependency) for sections that report curves.
 A figure that cannot be made (no GL, too few plants) is left out with a note in ``report["figure_notes"]``: the
@@ -30,6 +30,7 @@ import torch
 from torch import Tensor
 
 from .data import EvalData, EvalSettings, Plant4D, primary_source
+from .model_report import FIGURE_COLUMNS, time_columns, write_model_figures
 
 if TYPE_CHECKING:
     from ..temporal import SpatiotemporalRegistration
@@ -55,8 +56,6 @@ class FigureLayout:
 def figure_layout(settings: EvalSettings) -> FigureLayout:
     """The layout for ``settings``: tiny with ``quick``; otherwise a modest ``n_t`` (at most 16) keeps the model
     fit on Pheno4D tomato around a minute."""
-    from ..cli.fit import FIGURE_COLUMNS
-
     if settings.quick:
         return FigureLayout(cell=96, steps=3, columns=FIGURE_COLUMNS, n_t=min(settings.n_t, 8), max_plants=3)
     return FigureLayout(cell=160, steps=5, columns=FIGURE_COLUMNS, n_t=min(settings.n_t, 16), max_plants=None)
@@ -169,7 +168,6 @@ def index_order_registration(res: SpatiotemporalRegistration) -> SpatiotemporalR
 
 
 def _geodesic4d_figure(data: EvalData, settings: EvalSettings, lay: FigureLayout, path: Path) -> Path | None:
-    from ..cli.fit import time_columns
     from ..render import format_time, render_grid, save_image
     from ..temporal import register4d
 
@@ -195,7 +193,6 @@ def _geodesic4d_figure(data: EvalData, settings: EvalSettings, lay: FigureLayout
 
 # ---------------------------------------------------------------------------------------- model
 def _model_figures(data: EvalData, settings: EvalSettings, lay: FigureLayout, out: Path) -> list[str]:
-    from ..cli.fit import write_figures as write_model_figures
     from ..model import FourDTreeModel
 
     kind = _kind_with(data, 2)
@@ -244,6 +241,7 @@ def write_figures(report: dict, datas: dict[str, EvalData], settings: EvalSettin
     return written
 
 
+TICK_TOL = 1e-9  # a tick count within rounding of a whole number is that number
 ROBUSTNESS_PANELS = (("noise", "node noise (sigma, % of the plant's height)"),
                      ("drop", "side branches dropped (%)"), ("split", "segments split (%)"))
 
@@ -269,8 +267,13 @@ def robustness_figure(report: dict, path: Path) -> Path | None:
 
 
 # ---------------------------------------------------------------------------------- line plots
-def _nice_ticks(lo: float, hi: float, n: int = 5) -> list[float]:
-    """About ``n`` round tick values (1, 2, 5 times a power of ten) covering ``[lo, hi]``."""
+def nice_ticks(lo: float, hi: float, n: int = 5) -> list[float]:
+    """About ``n`` round tick values (1, 2, 5 times a power of ten) covering ``[lo, hi]``.
+
+    Example:
+        >>> nice_ticks(0.0, 0.93), nice_ticks(0.0, 20.0)
+        ([0.0, 0.5, 1.0], [0, 5, 10, 15, 20])
+    """
     if not hi > lo:  # a constant: centred in a range 10 % of its size (a flat 100 % line sits mid-plot)
         pad = 0.05 * abs(lo) or 1.0
         lo, hi = lo - pad, hi + pad
@@ -278,7 +281,7 @@ def _nice_ticks(lo: float, hi: float, n: int = 5) -> list[float]:
     mag = 10 ** math.floor(math.log10(raw))
     step = next(m * mag for m in (1, 2, 5, 10) if m * mag >= raw)
     first = math.floor(lo / step) * step
-    return [first + i * step for i in range(int(math.ceil((hi - first) / step - 1e-9)) + 1)]
+    return [first + i * step for i in range(int(math.ceil((hi - first) / step - TICK_TOL)) + 1)]
 
 
 def line_plot(series: Mapping[str, tuple[Sequence[float], Sequence[float]]], title: str = "", xlabel: str = "",
@@ -288,20 +291,20 @@ def line_plot(series: Mapping[str, tuple[Sequence[float], Sequence[float]]], tit
     from PIL import Image, ImageDraw
 
     from ..render import LABEL_PALETTE
-    from ..render.frames import TEXT_INK, _font, _line_height, _text_width
+    from ..render.text import TEXT_INK, line_height, load_font, text_width
 
     W, H = size
-    font, small = _font(max(11, H // 26)), _font(max(10, H // 32))
-    lh = _line_height(font)
+    font, small = load_font(max(11, H // 26)), load_font(max(10, H // 32))
+    lh = line_height(font)
     pts = [(float(x), float(y)) for xs, ys in series.values() for x, y in zip(xs, ys)
            if math.isfinite(float(x)) and math.isfinite(float(y))]
     xs_all, ys_all = [p[0] for p in pts] or [0.0, 1.0], [p[1] for p in pts] or [0.0, 1.0]
-    xt, yt = _nice_ticks(min(xs_all), max(xs_all)), _nice_ticks(min(ys_all), max(ys_all))
+    xt, yt = nice_ticks(min(xs_all), max(xs_all)), nice_ticks(min(ys_all), max(ys_all))
 
     def label(v: float) -> str:
         return f"{v:.4g}"
 
-    left = max(_text_width(label(v), small) for v in yt) + lh + 14
+    left = max(text_width(label(v), small) for v in yt) + lh + 14
     top, bottom, right = (2 * lh if title else lh), 2 * lh + 10, 12
     x0, x1, y0, y1 = left, W - right, top, H - bottom  # the plotting box (y0 at the top)
 
@@ -313,11 +316,11 @@ def line_plot(series: Mapping[str, tuple[Sequence[float], Sequence[float]]], tit
     for v in xt:
         x, _ = px(v, yt[0])
         d.line([(x, y0), (x, y1)], fill=(225, 225, 225))
-        d.text((x - _text_width(label(v), small) / 2, y1 + 4), label(v), fill=TEXT_INK, font=small)
+        d.text((x - text_width(label(v), small) / 2, y1 + 4), label(v), fill=TEXT_INK, font=small)
     for v in yt:
         _, y = px(xt[0], v)
         d.line([(x0, y), (x1, y)], fill=(225, 225, 225))
-        d.text((x0 - 6 - _text_width(label(v), small), y - lh / 2), label(v), fill=TEXT_INK, font=small)
+        d.text((x0 - 6 - text_width(label(v), small), y - lh / 2), label(v), fill=TEXT_INK, font=small)
     d.rectangle([x0, y0, x1, y1], outline=TEXT_INK)
     for k, (xs, ys) in enumerate(series.values()):
         color = tuple(int(c) for c in LABEL_PALETTE[k % len(LABEL_PALETTE)])
@@ -334,16 +337,16 @@ def line_plot(series: Mapping[str, tuple[Sequence[float], Sequence[float]]], tit
     ly = y0 + 6
     for k, name in enumerate(series):  # legend: top right, inside the box
         color = tuple(int(c) for c in LABEL_PALETTE[k % len(LABEL_PALETTE)])
-        tx = x1 - 8 - _text_width(name, small)
+        tx = x1 - 8 - text_width(name, small)
         d.line([(tx - 24, ly + lh / 2), (tx - 6, ly + lh / 2)], fill=color, width=3)
         d.text((tx, ly), name, fill=TEXT_INK, font=small)
         ly += lh
     if title:
-        d.text(((W - _text_width(title, font)) / 2, lh / 3), title, fill=TEXT_INK, font=font)
+        d.text(((W - text_width(title, font)) / 2, lh / 3), title, fill=TEXT_INK, font=font)
     if xlabel:
-        d.text(((x0 + x1 - _text_width(xlabel, font)) / 2, H - lh - 4), xlabel, fill=TEXT_INK, font=font)
+        d.text(((x0 + x1 - text_width(xlabel, font)) / 2, H - lh - 4), xlabel, fill=TEXT_INK, font=font)
     if ylabel:  # rotated text: draw it on its own strip and turn it
-        strip = Image.new("RGB", (_text_width(ylabel, font) + 4, lh + 2), (255, 255, 255))
+        strip = Image.new("RGB", (text_width(ylabel, font) + 4, lh + 2), (255, 255, 255))
         ImageDraw.Draw(strip).text((2, 0), ylabel, fill=TEXT_INK, font=font)
         strip = strip.rotate(90, expand=True)
         img.paste(strip, (2, int((y0 + y1 - strip.height) / 2)))

@@ -1,8 +1,13 @@
-"""``report.json`` and ``report.md`` of an evaluation (and its figures), written without replacing anything."""
+"""``report.json`` and ``report.md`` of an evaluation (and its figures), written without replacing anything, and
+where the numbers were measured (:func:`machine`)."""
 
 from __future__ import annotations
 
 import importlib
+import json
+import math
+import platform
+import subprocess
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -12,6 +17,54 @@ from .data import EvalData, EvalSettings
 from .stats import fmt, md_table
 
 PAPER = "Khanam et al., ECCV 2024"
+
+
+def _commit() -> str | None:
+    try:
+        out = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, timeout=5,
+                             cwd=Path(__file__).resolve().parent)
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return out.stdout.strip() or None
+
+
+def machine() -> dict[str, Any]:
+    """Where the numbers were measured (stated with them)."""
+    import os
+
+    import torch
+
+    from .. import __version__
+
+    return {"torch4dtree": __version__, "commit": _commit(), "python": platform.python_version(),
+            "torch": torch.__version__, "cpus": os.cpu_count(), "threads": torch.get_num_threads(),
+            "platform": platform.platform(), "load_average": list(os.getloadavg()) if hasattr(os, "getloadavg")
+            else None}
+
+
+def dumps(report: dict[str, Any]) -> str:
+    """The report as JSON (NaN written as null: strict JSON).
+
+    Example:
+        >>> print(dumps({"mean": float("nan"), "pairs": (1, 2)}))
+        {
+         "mean": null,
+         "pairs": [
+          1,
+          2
+         ]
+        }
+    """
+    def clean(x: Any) -> Any:
+        if isinstance(x, float) and not math.isfinite(x):
+            return None
+        if isinstance(x, dict):
+            return {str(k): clean(v) for k, v in x.items()}
+        if isinstance(x, (list, tuple)):
+            return [clean(v) for v in x]
+        return x
+
+    return json.dumps(clean(report), indent=1)
 
 
 def markdown(report: dict[str, Any], sections: Sequence[str]) -> str:
@@ -42,8 +95,6 @@ def markdown(report: dict[str, Any], sections: Sequence[str]) -> str:
 def write_report(report: dict[str, Any], out: Path, datas: dict[str, EvalData], settings: EvalSettings,
                  sections: Sequence[str]) -> list[str]:
     """Write the figures (when ``settings.figures``), ``report.json`` and ``report.md`` into ``out``."""
-    from .run import dumps
-
     out.mkdir(parents=True, exist_ok=True)
     if settings.figures:
         from .figures import write_figures

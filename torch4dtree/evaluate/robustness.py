@@ -1,4 +1,4 @@
-"""Robustness of the registration to noise and topological variation (SPEC §7).
+"""Robustness of the registration to noise and topological variation (docs/method.md §7).
 
 The authors' journal extension (arXiv 2509.19048) claims robustness to noise and topological variation; this
 section measures ours. A frame is perturbed in a known way and registered onto the unperturbed frame (no
@@ -60,6 +60,7 @@ import torch
 
 from ..data.synthetic import KINDS
 from ..data.truth import identity_scores
+from ..io.dataset import DatasetError
 from ..trees.structures import Trees
 from .data import SOURCES, EvalData, EvalSettings, Plant4D
 from .stats import fmt, md_table, summary
@@ -78,6 +79,7 @@ LEVEL_UNITS = {"noise": "sigma, % of height", "drop": "% of side branches", "spl
 FRAMES_PER_KIND = 4  # at normalised times 1/4, 1/2, 3/4, 1: ~30-60 s for all of Pheno4D (swc + mat)
 QUICK_FRAMES_PER_KIND = 1
 SEED_OFFSET = 500  # keeps this section's random stream apart from the others' (EvalSettings.generator)
+MOVED_SHARE = 1e-6  # a perturbation moved a frame when its distance exceeds this share of the scan-to-scan one
 
 
 @dataclass(frozen=True)
@@ -115,7 +117,7 @@ def from_skeleton(xyz: np.ndarray, parent: np.ndarray, where: str = "skeleton") 
     for b, path in enumerate(paths):
         label[path if b == 0 else path[1:]] = b
     if (label < 0).any():
-        raise ValueError(f"{where}: {int((label < 0).sum())} nodes lie on no branch")
+        raise DatasetError(f"{where}: {int((label < 0).sum())} nodes lie on no branch")
     return LabelledNodes(xyz, parent, label, tuple(parents), forest=False)
 
 
@@ -239,7 +241,7 @@ def frame_nodes(path: Path) -> list[LabelledNodes]:
 
         struct = load_mat_struct(path)
         if struct is None:
-            raise ValueError(f"{path}: an empty frame")
+            raise DatasetError(f"{path}: an empty frame")
         return [from_polylines(*mat_to_branches(struct, str(path)))]
     from ..io.swc import read_swc_skeleton
 
@@ -303,7 +305,7 @@ def _curve(rows: list[dict[str, Any]], level: float) -> dict[str, Any]:
     """One point of a curve: a level's rows over the sampled frames, pooled."""
     sc, ix = pooled(r["scores"] for r in rows), pooled(r["index"] for r in rows)
     # only where the perturbation moved the tree at all (a split one is the same curve: both distances ~0)
-    improved = [r["distance"] < r["before"] for r in rows if r["before"] > 1e-6 * r["day"]]
+    improved = [r["distance"] < r["before"] for r in rows if r["before"] > MOVED_SHARE * r["day"]]
     return {"level": level, "frames": len(rows), "precision": sc["precision"], "recall": sc["recall"],
             "index_precision": ix["precision"], "index_recall": ix["recall"],
             "distance": summary(r["distance"] for r in rows), "ratio": summary(r["ratio"] for r in rows),

@@ -3,49 +3,22 @@
 from __future__ import annotations
 
 import importlib
-import json
-import platform
-import subprocess
 import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 from .data import EvalData, EvalSettings, load_eval_data, sources_of
+from .report import machine, write_report
 
 # experiment modules, in report order (see the package doc for their contract)
 SECTIONS = ("spatial", "temporal", "generative", "truth", "robustness")
-
-
-def _commit() -> str | None:
-    try:
-        out = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, timeout=5,
-                             cwd=Path(__file__).resolve().parent)
-    except (OSError, subprocess.SubprocessError):
-        return None
-    return out.stdout.strip() or None
-
-
-def machine() -> dict[str, Any]:
-    """Where the numbers were measured (stated with them)."""
-    import os
-
-    import torch
-
-    from .. import __version__
-
-    return {"torch4dtree": __version__, "commit": _commit(), "python": platform.python_version(),
-            "torch": torch.__version__, "cpus": os.cpu_count(), "threads": torch.get_num_threads(),
-            "platform": platform.platform(), "load_average": list(os.getloadavg()) if hasattr(os, "getloadavg")
-            else None}
 
 
 def evaluate(data_dir: str | Path, out: str | Path | None = None, settings: EvalSettings | None = None,
              sections: Sequence[str] = SECTIONS, progress: bool = False) -> dict[str, Any]:
     """Run the experiments of ``sections`` on a data folder; write ``report.json`` / ``report.md`` (and figures) to
     ``out`` when given (a new folder, or an existing empty one). Returns the report as a dict."""
-    from .report import write_report
-
     settings = settings or EvalSettings()
     unknown = [s for s in sections if s not in SECTIONS]
     if unknown:
@@ -76,19 +49,3 @@ def evaluate(data_dir: str | Path, out: str | Path | None = None, settings: Eval
     if out_path is not None:
         report["files"] = write_report(report, out_path, datas, settings, sections)
     return report
-
-
-def dumps(report: dict[str, Any]) -> str:
-    """The report as JSON (NaN written as null: strict JSON)."""
-    import math
-
-    def clean(x: Any) -> Any:
-        if isinstance(x, float) and not math.isfinite(x):
-            return None
-        if isinstance(x, dict):
-            return {str(k): clean(v) for k, v in x.items()}
-        if isinstance(x, (list, tuple)):
-            return [clean(v) for v in x]
-        return x
-
-    return json.dumps(clean(report), indent=1)

@@ -6,13 +6,14 @@
   (the paper's ``.mat`` trees when present): the 4D distance before registration (index order, identity warps, same
   trajectories) and after the spatial registration. The paper's Table 1 is this 4D comparison (tomato 325 -> 136,
   maize 35 -> 10, mean); its distances are in its own scaling, so compare after / before ratios.
-* **Table 2**: cycle consistency (SPEC §7) of the same consecutive pairs, for eps in {0.1, 0.05, 0.02, 0.01} x
-  the tree's height, at ``T_cycle`` points per branch on the primary source (its frames read again at that
-  resolution) and at ``T`` on the others. Three counts: ``mapped`` leaves out the points on branches matched to null
-  (no image; the share left out is reported), ``all`` counts them as failures (SPEC §7 asks for these two), and
-  ``null_at_base`` sends them where the paper's null branch sits (a zero-length curve at the bifurcation point, SPEC
-  §2): the image of their branch's base. The paper's wording ("percentage of points x") is closest to ``all``, the
-  headline; its figures (mean 0.94 / 2.00 / 2.87 / 5.45 %) stand beside all three.
+* **Table 2**: cycle consistency (docs/method.md §7) of the same consecutive pairs, for eps in
+  {0.1, 0.05, 0.02, 0.01} x the tree's height, at ``T_cycle`` points per branch on the primary source (its frames
+  read again at that resolution) and at ``T`` on the others. Three counts: ``mapped`` leaves out the points on
+  branches matched to null (no image; the share left out is reported), ``all`` counts them as failures
+  (docs/method.md §7 asks for these two), and ``null_at_base`` sends them where the paper's null branch sits (a
+  zero-length curve at the bifurcation point, docs/method.md §3): the image of their branch's base. The paper's
+  wording ("percentage of points x") is closest to ``all``, the headline; its figures (mean 0.94 / 2.00 / 2.87 /
+  5.45 %) stand beside all three.
 """
 
 from __future__ import annotations
@@ -28,11 +29,13 @@ import torch
 from tqdm.auto import tqdm
 
 from ..io import LoadOptions, read_tree
+from ..io.dataset import DatasetError
 from ..trees.correspondence import DEFAULT_EPS, PAPER_CYCLE_ERRORS, cycle_consistency
 from ..trees.registration import register_trees
 from ..trees.structures import Trees
 from .data import EvalData, EvalSettings, Plant4D, primary_source
 from .pairs import pair_seconds, registered_pairs
+from .paper import SECONDS
 from .stats import fmt, md_table, summary
 
 # the paper's Table 1 (4D plants, mean / median / std before and after its spatial registration)
@@ -43,8 +46,9 @@ PAPER_TABLE1 = {"tomato": {"before": {"mean": 325.0, "median": 347.0, "std": 52.
 # the paper's Table 2 (its method): mean (PAPER_CYCLE_ERRORS), median, std
 _PAPER_MEDIAN_STD = {0.1: (0.0008, 0.0201), 0.05: (0.0015, 0.0362), 0.02: (0.0065, 0.0417), 0.01: (0.0276, 0.0615)}
 PAPER_TABLE2 = {e: (PAPER_CYCLE_ERRORS[e], *ms) for e, ms in _PAPER_MEDIAN_STD.items()}
-PAPER_SECONDS = {"register_3d": 2.3, "register_4d_tomato": 235.0, "register_4d_maize": 17.0}
+PAPER_SECONDS = {k: SECONDS[k] for k in ("register_3d", "register_4d_tomato", "register_4d_maize")}
 QUICK_PAIRS = 3  # consecutive pairs per kind and source with settings.quick
+DISTANCE_TOL = 1e-9  # a distance lowered or raised by less than this (rounding) counts as unchanged
 
 
 def consecutive_pairs(data: EvalData, kind: str, settings: EvalSettings) -> list[tuple[Plant4D, int]]:
@@ -53,7 +57,9 @@ def consecutive_pairs(data: EvalData, kind: str, settings: EvalSettings) -> list
     return pairs[:QUICK_PAIRS] if settings.quick else pairs
 
 
-def _registration_3d(data: EvalData, kind: str, settings: EvalSettings, progress: bool) -> dict[str, Any]:
+def registration_3d(data: EvalData, kind: str, settings: EvalSettings, progress: bool) -> dict[str, Any]:
+    """Table 1's 3D row of one source and kind: every consecutive pair registered (module doc); distances before /
+    after and seconds as :func:`.stats.summary` dicts, their ratio of means, and the pairs lowered / raised."""
     before, after, seconds = [], [], []
     for plant, k in tqdm(consecutive_pairs(data, kind, settings), desc=f"3D pairs ({data.source}, {kind})",
                          unit="pair", disable=not progress):
@@ -65,8 +71,8 @@ def _registration_3d(data: EvalData, kind: str, settings: EvalSettings, progress
         after.append(float(reg.distance))
     return {"pairs": len(before), "before": summary(before), "after": summary(after),
             "ratio": statistics.fmean(after) / statistics.fmean(before) if before else float("nan"),
-            "lowered": sum(a < b - 1e-9 for a, b in zip(after, before)),
-            "raised": sum(a > b + 1e-9 for a, b in zip(after, before)), "seconds": summary(seconds)}
+            "lowered": sum(a < b - DISTANCE_TOL for a, b in zip(after, before)),
+            "raised": sum(a > b + DISTANCE_TOL for a, b in zip(after, before)), "seconds": summary(seconds)}
 
 
 def _registration_4d(data: EvalData, kind: str, settings: EvalSettings, progress: bool) -> dict[str, Any]:
@@ -76,7 +82,7 @@ def _registration_4d(data: EvalData, kind: str, settings: EvalSettings, progress
     out: dict[str, Any] = {
         "pairs": len(rows), "before": summary(before), "after": summary(after),
         "ratio": statistics.fmean(after) / statistics.fmean(before) if rows else float("nan"),
-        "lowered": sum(a < b - 1e-9 for a, b in zip(after, before)),
+        "lowered": sum(a < b - DISTANCE_TOL for a, b in zip(after, before)),
         "kept_index_order": sum(r.kept_index_order for _, _, r in rows),
         "spatial_candidates": dict(Counter(r.spatial_candidate for _, _, r in rows)),
         "seconds": summary(pair_seconds(data, a, b, r) for a, b, r in rows),
@@ -89,7 +95,9 @@ def _registration_4d(data: EvalData, kind: str, settings: EvalSettings, progress
     return out
 
 
-def _frames_at(plant: Plant4D, T: int) -> list[Trees | None]:
+def frames_at(plant: Plant4D, T: int) -> list[Trees | None]:
+    """The plant's frames read again from its files at ``T`` points per branch (float64; ``None``: an empty
+    frame)."""
     opts = LoadOptions(T=T, repair=True, dtype=torch.float64)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # repaired Pheno4D skeletons: known, reported by `info`
@@ -101,13 +109,16 @@ def _frames_at(plant: Plant4D, T: int) -> list[Trees | None]:
 CYCLE_COUNTS = {"mapped": "error", "all": "error_all", "null_at_base": "error_null_at_base"}
 
 
-def _cycle(data: EvalData, kind: str, settings: EvalSettings, T: int, progress: bool) -> dict[str, Any]:
+def cycle_table(data: EvalData, kind: str, settings: EvalSettings, T: int, progress: bool) -> dict[str, Any]:
+    """Table 2 of one source and kind at ``T`` points per branch: per count of :data:`CYCLE_COUNTS` and eps, a
+    :func:`.stats.summary` over the consecutive pairs; ``per_pair`` keeps the errors, ``unmatched`` the share of
+    length on null-matched branches."""
     errors: dict[str, list[np.ndarray]] = {c: [] for c in CYCLE_COUNTS}
     unmatched = []
     frames: dict[str, list[Trees | None]] = {}
     for plant, k in tqdm(consecutive_pairs(data, kind, settings), desc=f"cycle consistency ({data.source}, {kind})",
                          unit="pair", disable=not progress):
-        fr = frames.setdefault(plant.name, _frames_at(plant, T))
+        fr = frames.setdefault(plant.name, frames_at(plant, T))
         a, b = fr[k], fr[k + 1]
         if a is None or b is None:
             continue
@@ -125,21 +136,21 @@ def _cycle(data: EvalData, kind: str, settings: EvalSettings, T: int, progress: 
 def run(datas: dict[str, EvalData], settings: EvalSettings, progress: bool = False) -> dict[str, Any]:
     primary = primary_source(datas)
     if primary is None:
-        raise ValueError("no plants to evaluate")
+        raise DatasetError("no plants to evaluate")
     table1: dict[str, Any] = {"trees3d": {}, "plants4d": {}, "source_4d": primary}
     table2: dict[str, Any] = {"eps": list(DEFAULT_EPS), "paper": {str(e): dict(zip(("mean", "median", "std"), v))
                                                                    for e, v in PAPER_TABLE2.items()},
                               "per_source": {}}
     for source, data in datas.items():
-        table1["trees3d"][source] = {k: _registration_3d(data, k, settings, progress) for k in data.kinds}
+        table1["trees3d"][source] = {k: registration_3d(data, k, settings, progress) for k in data.kinds}
         # the dense T_cycle on the primary source (the paper's trees); the others at T, to keep the report fast
         T = settings.T_cycle if source == primary else settings.T
         T = min(T, 64) if settings.quick else T
-        table2["per_source"][source] = {k: _cycle(data, k, settings, T, progress) for k in data.kinds}
+        table2["per_source"][source] = {k: cycle_table(data, k, settings, T, progress) for k in data.kinds}
     data = datas[primary]
     table1["plants4d"] = {k: _registration_4d(data, k, settings, progress) for k in data.kinds
                           if len(data.by_kind(k)) >= 2}
-    # the headline cycle-consistency figures (the issue's JSON contract): the primary source, all kinds pooled,
+    # the headline cycle-consistency figures (the report's JSON contract): the primary source, all kinds pooled,
     # counting points on null-matched branches as failures (the paper's wording); "mapped" beside it
     pooled = _pooled_cycle(table2["per_source"][primary])
     table2["cycle_consistency"] = pooled["all"]

@@ -62,16 +62,17 @@ import torch
 from torch import Tensor
 from tqdm.auto import tqdm
 
-from ..bench.temporal import PAPER_TEMPORAL_SECONDS
 from ..curves.warps import random_warp
 from ..data.synthetic import evaluate_warp
+from ..settings import TIME_WEIGHT
 from ..space.pca import TreePCA
 from ..temporal import AlignedSequence, SpatiotemporalRegistration, register4d, register_sequence
-from ..temporal.registration import TIME_WEIGHT, register_trajectories
+from ..temporal.registration import register_trajectories
 from ..temporal.trajectory import fine_size, resample_trajectory
 from ..trees.structures import TreeSequence
 from .data import EvalData, EvalSettings, Plant4D, primary_source
 from .pairs import aligned_sequence, registered_pairs
+from .paper import SECONDS
 from .stats import fmt, md_table, summary
 
 __all__ = ["PAPER_TABLE3", "PlantWarp", "markdown", "plant_warps", "run", "true_warp", "warp_error", "warped_copies"]
@@ -87,7 +88,7 @@ PAPER_TABLE3 = {
                "maize": {"before": {"mean": 71.0, "median": 70.0, "std": 8.0},
                          "after": {"mean": 15.0, "median": 16.0, "std": 3.0}}},
 }
-PAPER_SECONDS = {"maize": PAPER_TEMPORAL_SECONDS[0], "tomato": PAPER_TEMPORAL_SECONDS[1]}
+PAPER_SECONDS = {"maize": SECONDS["temporal_maize"], "tomato": SECONDS["temporal_tomato"]}
 # rows of the table: (key, label, the paper's part it stands beside)
 ROWS = (("pairs", "(a) pairs", "pairs"), ("pairs_unsync", "(a) unsynchronised pairs", "pairs"),
         ("warped", "(b) warped copy", "warped"), ("warped_missing", "(b) warped copy, missing days", "warped"),

@@ -1,4 +1,5 @@
-"""What only synthetic data can measure (SPEC §7): branch correspondences and growth clocks against ground truth.
+"""What only synthetic data can measure (docs/method.md §7): branch correspondences and growth clocks against
+ground truth.
 
 Runs on the ``synthetic`` source only (returns ``{}`` otherwise), per kind:
 
@@ -9,8 +10,7 @@ Runs on the ``synthetic`` source only (returns ``{}`` otherwise), per kind:
   pairs, recall over organs present in both frames; spurs ignored); the chained identities are scored by
   :func:`~torch4dtree.temporal.within.identity_accuracy` (share of all branches of all frames sitting in their
   organ's slot). The identities are scored again with ``register_sequence``'s own default ``lp`` (tuned for
-  identities) when the evaluation's differs (on synthetic maize they differed a lot, 70 vs 91 % of branches in
-  their organ's slot, until the order-preserving matching of ``register_sequence``: 99.7 % at both).
+  identities) when the evaluation's differs.
 * **across plants**: the same normalised time of two plants of the kind (the same frame index when, as in
   ``torch4dtree synth`` sets, plants share their days), at about 1/3, 2/3 and the end of the sequence, one tree
   registered onto the other with a rotation about the vertical (plants grow in any azimuth; ``settings.rotation``
@@ -19,16 +19,16 @@ Runs on the ``synthetic`` source only (returns ``{}`` otherwise), per kind:
   (:func:`~torch4dtree.temporal.register4d` on the within-sequence registrations above); the recovered time warp
   against the true relative clock :func:`~torch4dtree.data.relative_warp` (mean absolute error on the normalised
   grid), beside the identity warp (no registration) and an *oracle* layout that puts organs in slots by their
-  labels (:func:`torch4dtree.bench.temporal.benchmark_growth_clocks`' ``labels`` layout), which isolates the
+  labels (:func:`.oracle.label_features`), which isolates the
   temporal step from the spatial one. ``register4d`` is given the within-sequence registrations above (``lp``
   relative to each pair's reference frame); called on the raw sequences it would scale ``lp`` by the reference
   plant's last frame instead.
 
 Pairs of plants: every pair while there are at most :data:`ALL_PAIRS_UP_TO` plants (15 pairs of 6 plants),
 otherwise disjoint neighbours ``(0, 1), (2, 3), ...`` (an odd last plant pairs with the first), so that the
-cost grows linearly beyond that. Three disjoint pairs of 6 plants hid a set (synthetic bean seed 0) where 5 of the
-15 pairs matched leaves across the stem (slots the same organ: 0.96 on the 3 pairs, 0.61 on all 15). Precision and
-recall are pooled over pairs (counts summed), as :func:`torch4dtree.bench.hierarchy.identity_accuracy` does.
+cost grows linearly beyond that (disjoint pairs alone can miss the pairs whose leaves match across the stem).
+Precision and recall are pooled over pairs (counts summed), as
+:func:`torch4dtree.bench.hierarchy.identity_accuracy` does.
 ``quick``: two plants, one pair, the last frame only.
 """
 
@@ -44,6 +44,7 @@ from torch import Tensor
 
 from ..data.synthetic import evaluate_warp, relative_warp
 from ..data.truth import IdentityScores, identity_scores
+from ..io.dataset import DatasetError
 from .data import EvalData, EvalSettings, Plant4D
 from .stats import fmt, md_table, summary
 
@@ -101,7 +102,7 @@ class _Clock(NamedTuple):
 
 def _clock(plant: Plant4D) -> _Clock:
     if plant.truth is None or "growth_warp" not in plant.truth:
-        raise ValueError(f"{plant.name}: no growth clock in the dataset's ground truth")
+        raise DatasetError(f"{plant.name}: no growth clock in the dataset's ground truth")
     gw = plant.truth["growth_warp"]
     return _Clock(torch.tensor(gw["grid"], dtype=torch.float64), torch.tensor(gw["values"], dtype=torch.float64))
 
@@ -218,17 +219,18 @@ def _deterministic() -> Iterator[None]:
 
 def _oracle_warp(a: Plant4D, b: Plant4D, settings: EvalSettings) -> Tensor:
     """The temporal registration of ``b`` onto ``a`` in the ground-truth (organ label) layout."""
-    from ..bench.temporal import _label_features, _pca_trajectories
-    from ..temporal.registration import TIME_WEIGHT, register_trajectories
+    from ..settings import TIME_WEIGHT
+    from ..temporal.registration import register_trajectories
+    from .oracle import label_features, pca_trajectories
 
     seqs = [a.sequence.to(torch.float64), b.sequence.to(torch.float64)]
-    # a label may name several branches of a frame (spurs, organs the rule split): _label_features writes them
+    # a label may name several branches of a frame (spurs, organs the rule split): label_features writes them
     # into one slot by an indexed assignment whose winner varies from run to run on several threads; the
-    # deterministic kernels make it the same every time (the oracle differed by up to 0.06 between two calls)
+    # deterministic kernels make it the same every time
     with _deterministic():
-        feats = _label_features(seqs, seqs[0].frames.T)
+        feats = label_features(seqs, seqs[0].frames.T)
     k = min(ORACLE_COMPONENTS, sum(len(s) for s in seqs) - 1)
-    ta, tb = _pca_trajectories(feats, [s.times for s in seqs], k, settings.n_t)
+    ta, tb = pca_trajectories(feats, [s.times for s in seqs], k, settings.n_t)
     return register_trajectories(ta, tb, time_weight=TIME_WEIGHT).warp  # register4d's temporal step
 
 

@@ -1,4 +1,4 @@
-"""Sequence folders (one 4D tree) and dataset folders (several), SPEC §6.
+"""Sequence folders (one 4D tree) and dataset folders (several), docs/method.md §6.
 
 A **sequence folder** holds one file per frame (``.swc`` or reference ``.mat``). Frame times
 come, in this order of precedence, from
@@ -28,7 +28,8 @@ from pathlib import Path
 
 import torch
 
-from ..trees.structures import DEFAULT_T, TreeError, Trees, TreeSequence
+from ..settings import DEFAULT_T, HIERARCHIES, check_choice
+from ..trees.structures import TreeError, Trees, TreeSequence
 from .mat import read_mat_tree
 from .swc import read_swc, read_swc_skeleton
 
@@ -42,7 +43,28 @@ class DatasetError(TreeError):
 
 @dataclass
 class LoadOptions:
-    """How skeleton files become trees (the same for every frame of a dataset)."""
+    """How skeleton files become trees (the same for every frame of a dataset).
+
+    Attributes:
+        T: points per branch after arc-length resampling.
+        max_layers: keep branches up to this depth (``None``: all).
+        min_branch_length: drop side branches shorter than this (file units).
+        repair: mend cycles and parts cut off from the root (with a warning) instead of failing.
+        labels_from_type: the SWC type column holds branch identities (:attr:`Trees.label`).
+        dtype: of the points.
+        hierarchy: how a skeleton's branch points are resolved, one of
+            :data:`~torch4dtree.settings.HIERARCHIES` (docs/method.md §2).
+        joint_hierarchy: in a sequence of SWC frames, main branches chosen to agree over time
+            (:func:`~torch4dtree.trees.growth.consistent_frames`).
+
+    Example:
+        >>> LoadOptions(T=16).hierarchy
+        'straightest'
+        >>> LoadOptions(hierarchy="tallest")  # doctest: +ELLIPSIS
+        Traceback (most recent call last):
+        ...
+        torch4dtree.trees.structures.TreeError: hierarchy must be one of (...), got 'tallest'
+    """
 
     T: int = DEFAULT_T
     max_layers: int | None = None
@@ -50,9 +72,11 @@ class LoadOptions:
     repair: bool = False
     labels_from_type: bool = False
     dtype: torch.dtype = torch.float32
-    hierarchy: str = "straightest"  # how a skeleton's branch points are resolved (torch4dtree.trees.skeleton)
-    # in a sequence of SWC frames, main branches chosen to agree over time (torch4dtree.trees.growth)
+    hierarchy: str = "straightest"
     joint_hierarchy: bool = True
+
+    def __post_init__(self) -> None:
+        check_choice("hierarchy", self.hierarchy, HIERARCHIES)
 
 
 @dataclass
@@ -65,7 +89,15 @@ class LoadedSequence:
 
 
 def read_tree(path: str | Path, options: LoadOptions | None = None) -> Trees | None:
-    """Read one tree file (``.swc`` or reference ``.mat``); ``None`` for an empty ``.mat`` frame."""
+    """Read one tree file (``.swc`` or reference ``.mat``); ``None`` for an empty ``.mat`` frame.
+
+    Example:
+        >>> import tempfile
+        >>> path = Path(tempfile.mkdtemp()) / "day_1.swc"
+        >>> _ = path.write_text("1 0 0 0 0 1 -1\\n2 0 0 0 5 1 1\\n3 0 0 0 10 1 2\\n4 0 4 0 8 1 2\\n")
+        >>> read_tree(path, LoadOptions(T=8, dtype=torch.float64)).points.shape
+        torch.Size([2, 8, 3])
+    """
     o = options or LoadOptions()
     path = Path(path)
     if not path.is_file():
@@ -92,7 +124,12 @@ def _day_of_year(month: int, day: int) -> int | None:
 
 
 def time_from_name(name: str) -> tuple[str, float] | None:
-    """``(style, time)`` parsed from a frame file name, or ``None`` (see the module doc)."""
+    """``(style, time)`` parsed from a frame file name, or ``None`` (see the module doc).
+
+    Example:
+        >>> time_from_name("03_05.mat"), time_from_name("frame_7.swc"), time_from_name("scan.swc")
+        (('date', 65.0), ('integer', 7.0), None)
+    """
     toks = _tokens(name)
     for a, b in zip(toks[:-1], toks[1:]):
         if len(a) == 2 == len(b) and a.isdigit() and b.isdigit():
@@ -149,7 +186,16 @@ def read_sequence(
 
     With ``options.joint_hierarchy`` (the default) and SWC frames only, each frame's main branch is chosen to agree
     with the next frame's (:func:`torch4dtree.trees.growth.consistent_frames`): a young plant's main branch then
-    runs up its stem as on later days instead of into whichever apex leaf leaves the stem straightest today.
+    runs up its stem as on later days instead of into whichever apex leaf leaves the stem straightest on that day.
+
+    Example:
+        >>> import tempfile
+        >>> from torch4dtree.data import synthetic_plant
+        >>> root = Path(tempfile.mkdtemp())
+        >>> files = write_sequence(root / "plant_1", synthetic_plant("tomato", seed=0, n_frames=2, T=8).sequence)
+        >>> loaded = read_sequence(root / "plant_1", LoadOptions(T=8))
+        >>> loaded.files, loaded.sequence.frames.T
+        (['frame_000.swc', 'frame_001.swc'], 8)
     """
     o = options or LoadOptions()
     folder = Path(folder)
@@ -207,7 +253,16 @@ def is_sequence_folder(folder: Path) -> bool:
 
 
 def sequence_folders(folder: str | Path) -> list[Path]:
-    """The sequence folders of a dataset folder, sorted by name."""
+    """The sequence folders of a dataset folder, sorted by name.
+
+    Example:
+        >>> import tempfile
+        >>> from torch4dtree.data import synthetic_plant
+        >>> root = Path(tempfile.mkdtemp())
+        >>> files = write_sequence(root / "plant_1", synthetic_plant("tomato", seed=0, n_frames=2, T=8).sequence)
+        >>> [p.name for p in sequence_folders(root)]
+        ['plant_1']
+    """
     folder = Path(folder)
     if not folder.is_dir():
         raise DatasetError(f"{folder}: not a folder")
@@ -223,14 +278,32 @@ def read_dataset(
     options: LoadOptions | None = None,
     progress: Callable[[str], None] | None = None,
 ) -> list[LoadedSequence]:
-    """Read every sequence folder of a dataset folder."""
+    """Read every sequence folder of a dataset folder (see :func:`read_sequence`).
+
+    Example:
+        >>> import tempfile
+        >>> from torch4dtree.data import synthetic_plant
+        >>> root = Path(tempfile.mkdtemp())
+        >>> files = write_sequence(root / "plant_1", synthetic_plant("tomato", seed=0, n_frames=2, T=8).sequence)
+        >>> [s.sequence.name for s in read_dataset(root, LoadOptions(T=8))]
+        ['plant_1']
+    """
     return [read_sequence(p, options, progress) for p in sequence_folders(folder)]
 
 
 def write_sequence(folder: str | Path, seq: TreeSequence, overwrite: bool = False, comment: str = "") -> list[Path]:
     """Write a 4D tree as a sequence folder: one SWC file per frame (``frame_NNN.swc``, branch type = label) and a
     ``times.json`` manifest. Checks every target first: nothing is written if a file exists and not ``overwrite``.
-    Returns the written paths."""
+    Returns the written paths.
+
+    Example:
+        >>> import tempfile
+        >>> from torch4dtree.data import synthetic_plant
+        >>> root = Path(tempfile.mkdtemp())
+        >>> files = write_sequence(root / "plant_1", synthetic_plant("tomato", seed=0, n_frames=2, T=8).sequence)
+        >>> [p.name for p in files]
+        ['frame_000.swc', 'frame_001.swc', 'times.json']
+    """
     from .files import write_text_safely
     from .swc import write_swc
 

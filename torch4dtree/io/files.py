@@ -63,6 +63,16 @@ def write_bytes_safely(path: Path, data: bytes, overwrite: bool = False) -> Path
 
     The data goes to a temporary file in the same folder first, so a failure half-way never
     leaves a truncated file where a good one was.
+
+    Example:
+        >>> import tempfile
+        >>> path = Path(tempfile.mkdtemp()) / "notes.bin"
+        >>> write_bytes_safely(path, b"1") == path
+        True
+        >>> write_bytes_safely(path, b"2")  # doctest: +ELLIPSIS
+        Traceback (most recent call last):
+        ...
+        FileExistsError: ... exists; pass overwrite=True (--overwrite) to replace it
     """
     path = Path(path)
     if path.exists() and not overwrite:
@@ -80,5 +90,12 @@ def write_bytes_safely(path: Path, data: bytes, overwrite: bool = False) -> Path
 
 
 def write_text_safely(path: Path, text: str, overwrite: bool = False) -> Path:
-    """Text version of :func:`write_bytes_safely` (UTF-8)."""
+    """Text version of :func:`write_bytes_safely` (UTF-8).
+
+    Example:
+        >>> import tempfile
+        >>> path = write_text_safely(Path(tempfile.mkdtemp()) / "notes.txt", "growth\\n")
+        >>> path.read_text()
+        'growth\\n'
+    """
     return write_bytes_safely(path, text.encode("utf-8"), overwrite)

@@ -4,7 +4,7 @@ Each tree node is a struct with ``beta0`` (3 x T0, its main branch), ``beta`` (c
 branches, 3 x Tk each, starting at their attachment point) and ``beta_children`` (cell of K
 structs of the same form, whose ``beta0`` is that side branch), to any depth. The stored
 ``tk_sideLocs`` are node-index fractions; we recompute the bifurcation parameters as arc-length
-fractions of the attachment point's projection (SPEC §2), so they are not read.
+fractions of the attachment point's projection (docs/method.md §2), so they are not read.
 """
 
 from __future__ import annotations
@@ -15,7 +15,8 @@ from typing import Any
 import numpy as np
 import scipy.io
 
-from ..trees.structures import DEFAULT_T, TreeError, Trees
+from ..settings import DEFAULT_T
+from ..trees.structures import TreeError, Trees
 
 TREE_VARIABLES = ("compTrees", "all_compTrees")
 
@@ -101,7 +102,20 @@ def mat_to_branches(node: Any, where: str) -> tuple[list[np.ndarray], list[int]]
 
 
 def read_mat_tree(path: str | Path, T: int = DEFAULT_T) -> Trees | None:
-    """Read a reference ``.mat`` tree as a single-tree :class:`Trees`; ``None`` for an empty frame."""
+    """Read a reference ``.mat`` tree as a single-tree :class:`Trees`; ``None`` for an empty frame.
+
+    Example:
+        >>> import tempfile
+        >>> from pathlib import Path
+        >>> import numpy as np, scipy.io
+        >>> stem, leaf = np.array([[0.0, 0, 0], [0, 0, 10]]), np.array([[0.0, 0, 5], [4, 0, 8]])
+        >>> sides = np.empty(1, dtype=object)
+        >>> sides[0] = leaf.T  # a cell array of 3 x n side branches
+        >>> path = Path(tempfile.mkdtemp()) / "03_05.mat"
+        >>> scipy.io.savemat(path, {"compTrees": {"beta0": stem.T, "beta": sides}})
+        >>> read_mat_tree(path, T=8).parent.tolist()
+        [-1, 0]
+    """
     struct = load_mat_struct(path)
     if struct is None:
         return None

@@ -1,4 +1,4 @@
-"""SWC skeleton files: 7 columns ``id type x y z radius parent``, ``#`` comments (SPEC §6)."""
+"""SWC skeleton files: 7 columns ``id type x y z radius parent``, ``#`` comments (docs/method.md §6)."""
 
 from __future__ import annotations
 
@@ -10,8 +10,9 @@ from pathlib import Path
 
 import numpy as np
 
+from ..settings import DEFAULT_T
 from ..trees.skeleton import repair_skeleton, skeleton_to_trees, trees_to_skeleton, validate_skeleton
-from ..trees.structures import DEFAULT_T, TreeError, Trees
+from ..trees.structures import TreeError, Trees
 from .files import write_text_safely
 
 
@@ -42,6 +43,15 @@ def read_swc_skeleton(path: str | Path, repair: bool = False) -> Skeleton:
     With ``repair``, cycles and parts cut off from the root are mended (see
     :func:`~torch4dtree.trees.skeleton.repair_skeleton`) with a warning instead of an error: one
     published Pheno4D file (tomato_1, March 25) needs it.
+
+    Example:
+        >>> import tempfile
+        >>> from pathlib import Path
+        >>> path = Path(tempfile.mkdtemp()) / "plant.swc"
+        >>> _ = path.write_text("1 0 0 0 0 1 -1\\n2 0 0 0 5 1 1\\n3 0 0 0 10 1 2\\n4 3 4 0 8 1 2\\n")  # stem, leaf
+        >>> sk = read_swc_skeleton(path)
+        >>> sk.parent.tolist(), sk.types.tolist()
+        ([-1, 0, 1, 1], [0, 0, 0, 3])
     """
     path = Path(path)
     rows: list[tuple[int, int, float, float, float, float, int]] = []
@@ -104,12 +114,21 @@ def read_swc(
     main_path: Sequence[int] | None = None,
     hierarchy: str = "straightest",
 ) -> Trees:
-    """Read an SWC file as a single-tree :class:`Trees` (branch hierarchy by the ``hierarchy`` rule, SPEC §2;
+    """Read an SWC file as a single-tree :class:`Trees` (branch hierarchy by the ``hierarchy`` rule, docs/method.md §2;
     see :mod:`torch4dtree.trees.skeleton`).
 
     With ``labels_from_type`` the type column holds branch identities (as the synthetic plants
     write them) and becomes :attr:`Trees.label`. ``main_path`` names the main branch explicitly as
     the file's node ids from the root (default: chosen by the rule).
+
+    Example:
+        >>> import tempfile
+        >>> from pathlib import Path
+        >>> path = Path(tempfile.mkdtemp()) / "plant.swc"
+        >>> _ = path.write_text("1 0 0 0 0 1 -1\\n2 0 0 0 5 1 1\\n3 0 0 0 10 1 2\\n4 3 4 0 8 1 2\\n")  # stem, leaf
+        >>> tree = read_swc(path, T=8, labels_from_type=True)
+        >>> tree.parent.tolist(), tree.label.tolist()
+        ([-1, 0], [0, 3])
     """
     sk = read_swc_skeleton(path, repair)
     path_index = None
@@ -126,7 +145,21 @@ def read_swc(
 
 
 def write_swc(path: str | Path, tree: Trees, overwrite: bool = False, comment: str = "") -> Path:
-    """Write one tree as SWC (labels in the type column). Refuses to replace a file unless ``overwrite``."""
+    """Write one tree as SWC (labels in the type column). Refuses to replace a file unless ``overwrite``.
+
+    Returns the path written; reading it back gives the same branches (same hierarchy rule).
+
+    Example:
+        >>> import tempfile
+        >>> from pathlib import Path
+        >>> import numpy as np
+        >>> from torch4dtree import Trees
+        >>> stem, leaf = np.array([[0.0, 0, 0], [0, 0, 10]]), np.array([[0.0, 0, 5], [4, 0, 8]])
+        >>> tree = Trees.from_branches([[stem, leaf]], [[-1, 0]], T=8)
+        >>> path = write_swc(Path(tempfile.mkdtemp()) / "tree.swc", tree)
+        >>> read_swc(path, T=8).parent.tolist()
+        [-1, 0]
+    """
     xyz, parent, label = trees_to_skeleton(tree)
     lines = [f"# {c}" for c in comment.splitlines()] if comment else []
     lines.append("# id type x y z radius parent (written by torch4dtree)")

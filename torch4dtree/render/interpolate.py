@@ -1,9 +1,9 @@
 """Trees between the scans of a 4D tree, for smooth videos: the geodesic between registered neighbours.
 
 A video of a growing plant at one picture per scan jumps (scans are days apart, irregularly). Between
-two scans ``k`` and ``k + 1`` we show the geodesic from scan ``k`` to scan ``k + 1`` (SPEC §3: both
-registered into one slot layout, a straight line there), at the fraction of the time elapsed between
-them. A branch that appears between the scans grows from nothing; at a scan time the scan itself is
+two scans ``k`` and ``k + 1`` we show the geodesic from scan ``k`` to scan ``k + 1`` (docs/method.md §3:
+both registered into one slot layout, a straight line there), at the fraction of the time elapsed
+between them. A branch that appears between the scans grows from nothing; at a scan time the scan itself is
 shown (its registered copy, the same curves). This is a picture of the registration, not of biology.
 """
 

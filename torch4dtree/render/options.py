@@ -91,7 +91,7 @@ class RenderOptions:
         return int(self.size[0]), int(self.size[1])
 
 
-def _options(options: RenderOptions | None, overrides: dict[str, Any]) -> RenderOptions:
+def resolve_options(options: RenderOptions | None, overrides: dict[str, Any]) -> RenderOptions:
     known = {f.name for f in fields(RenderOptions)}
     unknown = set(overrides) - known
     if unknown:

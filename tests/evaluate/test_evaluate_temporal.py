@@ -9,9 +9,8 @@ import pytest
 import torch
 
 from torch4dtree.curves.warps import random_warp
-from torch4dtree.evaluate import EvalSettings, Plant4D, load_eval_data, pairs
+from torch4dtree.evaluate import EvalSettings, Plant4D, dumps, load_eval_data, pairs
 from torch4dtree.evaluate import temporal as table3
-from torch4dtree.evaluate.run import dumps
 from torch4dtree.temporal import register_trajectories, resample_trajectory, time_warp_trajectory
 
 SETTINGS = EvalSettings(T=16, quick=True)

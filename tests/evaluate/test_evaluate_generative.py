@@ -9,9 +9,8 @@ import math
 import pytest
 import torch
 
-from torch4dtree.evaluate import EvalSettings, load_eval_data
+from torch4dtree.evaluate import EvalSettings, dumps, load_eval_data
 from torch4dtree.evaluate import generative as gen
-from torch4dtree.evaluate.run import dumps
 from torch4dtree.temporal import register_trajectories
 
 

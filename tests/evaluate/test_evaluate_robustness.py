@@ -9,7 +9,7 @@ import pytest
 import torch
 from conftest import pheno4d
 
-from torch4dtree.evaluate import EvalSettings, load_eval_data, robustness
+from torch4dtree.evaluate import EvalSettings, dumps, load_eval_data, robustness
 from torch4dtree.evaluate.robustness import (
     drop_branches,
     frame_nodes,
@@ -18,7 +18,6 @@ from torch4dtree.evaluate.robustness import (
     split_edges,
     to_trees,
 )
-from torch4dtree.evaluate.run import dumps
 from torch4dtree.io import LoadOptions, read_tree
 from torch4dtree.trees.registration import register_trees
 

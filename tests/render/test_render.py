@@ -326,11 +326,11 @@ def header_ink(img: np.ndarray, top: int) -> np.ndarray:
 
 
 def test_long_titles_fit_and_keep_every_line():
-    from torch4dtree.render.frames import _compose
+    from torch4dtree.render.text import compose
 
     cells = np.full((1, 2, 64, 64, 3), 200, np.uint8)
     title = "T03_0321_a_seg_with_a_long_name  ->  T03_0324_a_seg\ndistance 38.6 (index order)  ->  28.0 (registered)"
-    img = _compose(cells, None, ["moving (registered)", "reference"], title)
+    img = compose(cells, None, ["moving (registered)", "reference"], title)
     top = img.shape[0] - 64
     ink = header_ink(img, top)
     cols = np.nonzero(ink.any(0))[0]
@@ -338,7 +338,7 @@ def test_long_titles_fit_and_keep_every_line():
     rows = np.nonzero(ink.any(1))[0]
     gaps = np.diff(rows) > 1
     assert gaps.sum() >= 2, "expected two title lines and a column-label line"  # separated by blank rows
-    one_line = _compose(cells, None, None, "short")
+    one_line = compose(cells, None, None, "short")
     assert one_line.shape[0] < img.shape[0]
 
 

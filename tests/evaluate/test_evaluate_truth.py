@@ -9,8 +9,7 @@ import pytest
 import torch
 
 from torch4dtree.data import IdentityScores, relative_warp, synthetic_dataset, synthetic_plant, write_dataset
-from torch4dtree.evaluate import EvalData, EvalSettings, load_eval_data, truth
-from torch4dtree.evaluate.run import dumps
+from torch4dtree.evaluate import EvalData, EvalSettings, dumps, load_eval_data, truth
 from torch4dtree.trees.registration import ORDER_TOL, register_trees
 
 T = 16

@@ -154,8 +154,8 @@ def test_robustness_figure_plots_the_report_curves(tmp_path):
 
 def test_ticks_of_a_constant_series_put_it_inside_the_plot():
     """A flat 100 % curve (the split robustness rows) used to get the axis 100-200, drawn on the bottom edge."""
-    from torch4dtree.evaluate.figures import _nice_ticks
+    from torch4dtree.evaluate.figures import nice_ticks
 
     for v in (100.0, 0.0, -3.0, 1e-4):
-        ticks = _nice_ticks(v, v)
+        ticks = nice_ticks(v, v)
         assert ticks[0] < v < ticks[-1], (v, ticks)

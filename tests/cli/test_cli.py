@@ -226,3 +226,60 @@ def test_config_literals_match_the_trees_module():
     from torch4dtree.trees.structures import DEFAULT_T
 
     assert Config().T == DEFAULT_T and HIERARCHIES == skeleton.HIERARCHIES
+
+
+# ----------------------------------------------------------------------------- exit codes and --debug
+def test_bad_input_is_exit_2_without_the_bug_note(capsys, tmp_path):
+    bad = tmp_path / "bad.swc"
+    bad.write_text("1 0 0 0 0 1 -1\n2 0 0 0 1 1 5\n")
+    assert main(["info", str(bad)]) == 2
+    line = one_line_error(capsys, "info")
+    assert "bug" not in line
+    config = tmp_path / "bad.json"
+    config.write_text('{"T": 1}')
+    assert main(["info", str(bad), "--config", str(config)]) == 2
+    assert "T must be at least 2" in one_line_error(capsys, "info")
+
+
+@pytest.mark.parametrize("error", [ValueError("an internal check failed"), RuntimeError("an internal check failed"),
+                                   KeyError("slot")])
+def test_an_internal_error_is_exit_1_with_the_bug_note(capsys, monkeypatch, tmp_path, error):
+    from torch4dtree.cli import info
+    from torch4dtree.cli.main import BUG_NOTE
+
+    def broken(*args, **kwargs):
+        raise error
+
+    monkeypatch.setattr(info, "info", broken)
+    assert main(["info", str(tmp_path)]) == 1
+    line = one_line_error(capsys, "info")
+    assert line.endswith(f"({BUG_NOTE})"), line
+
+
+def test_an_environment_error_is_exit_1_without_the_bug_note(capsys, monkeypatch, tmp_path):
+    from torch4dtree.cli import info
+
+    def missing(*args, **kwargs):
+        raise ModuleNotFoundError("rendering needs the 'render' extra", name="pyrender")
+
+    monkeypatch.setattr(info, "info", missing)
+    assert main(["info", str(tmp_path)]) == 1
+    assert "bug" not in one_line_error(capsys, "info")
+
+
+@pytest.mark.parametrize("where", ["before", "after"])
+def test_debug_prints_the_traceback(capsys, monkeypatch, tmp_path, where):
+    from torch4dtree.cli import info
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("an internal check failed")
+
+    monkeypatch.setattr(info, "info", broken)
+    argv = ["--debug", "info", str(tmp_path)] if where == "before" else ["info", str(tmp_path), "--debug"]
+    assert main(argv) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("Traceback (most recent call last):") and "in broken" in err, err
+    assert err.rstrip("\n").split("\n")[-1].startswith("torch4dtree info: error: an internal check failed")
+    monkeypatch.undo()
+    assert main(["--debug", "info", str(tmp_path / "missing")]) == 2  # input errors keep their code
+    assert "Traceback" in capsys.readouterr().err

@@ -1,0 +1,148 @@
+"""The report of a fitted :class:`~torch4dtree.model.FourDTreeModel` (what ``torch4dtree fit`` writes beside the
+checkpoint): dataset summary, distances before / after each registration stage, variance per mode, reconstruction
+error, timings, and the figures ``mean.png`` (the mean 4D tree over time), ``modes.png`` (the first modes at
+-2..+2 sd) and ``samples.png`` (a few samples over time).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from .stats import summary
+
+__all__ = ["FIGURE_COLUMNS", "model_report", "model_report_markdown", "time_columns", "write_model_figures",
+           "write_model_report"]
+
+FIGURE_COLUMNS = 6  # times shown of a 4D tree in a figure row
+MODE_TAUS = (-2.0, -1.0, 0.0, 1.0, 2.0)  # the modes' figure: standard deviations along each mode
+FIGURE_MODES = 3  # modes shown (at most)
+
+
+def _spread(x: Sequence[float]) -> dict[str, float]:
+    """Mean, median and max (the report's three columns) of :func:`.stats.summary`."""
+    s = summary(x)
+    return {k: s[k] for k in ("mean", "median", "max")}
+
+
+def model_report(model: Any, dataset: str | Path, seqs: Sequence[Any], seconds: dict[str, float]) -> dict[str, Any]:
+    """The JSON-ready report of ``model`` fitted on ``seqs`` (the 4D trees of folder ``dataset``); ``seconds``: the
+    caller's timings (reading...), added to the fit's own."""
+    import torch
+
+    rep = model.report_
+    pop = rep["population"]
+    times = torch.cat([s.times for s in seqs])
+    return {
+        "dataset": {"path": str(dataset), "sequences": len(seqs), "names": [s.name for s in seqs],
+                    "frames": int(sum(len(s) for s in seqs)), "frames_per_sequence": [len(s) for s in seqs],
+                    "time_min": float(times.min()), "time_max": float(times.max())},
+        "tree_space": {k: pop[k] for k in ("reference", "slots", "reference_slots", "components",
+                                           "variance_explained")},
+        "registration": {
+            "within_sequence_mean": pop["within_sequence_distance_mean"],
+            "cross_sequence": {"before": _spread(pop["cross_distance_before"]),
+                               "after": _spread(pop["cross_distance_after"])},
+            "temporal": {"before": _spread(rep["temporal_distance_before"]),
+                         "after": _spread(rep["temporal_distance_after"])}},
+        "mean_energies": rep["mean_energies"],
+        "modes": {"count": rep["modes"], "variance": rep["mode_variance"],
+                  "variance_ratio": rep["mode_variance_ratio"]},
+        "reconstruction": _spread(rep["reconstruction_4d"]),
+        "seconds": {**rep["seconds"], **seconds},
+    }
+
+
+def model_report_markdown(r: dict[str, Any]) -> str:
+    """A :func:`model_report` as Markdown."""
+    d, reg = r["dataset"], r["registration"]
+    lines = [f"# torch4dtree fit: {r['dataset']['path']}", "",
+             f"{d['sequences']} 4D trees, {d['frames']} frames (days {d['time_min']:.4g}..{d['time_max']:.4g}).",
+             f"Layout: {r['tree_space']['slots']} slots; tree PCA {r['tree_space']['components']} components "
+             f"({100 * r['tree_space']['variance_explained']:.1f} % of the frames' variance); "
+             f"reference 4D tree {r['tree_space']['reference']}.", "",
+             "## Distances (mean / median / max)", "", "| stage | before | after |", "|---|---|---|"]
+    for name, key in (("cross-sequence spatial (representatives)", "cross_sequence"),
+                      ("temporal (trajectories onto the 4D mean)", "temporal")):
+        b, a = reg[key]["before"], reg[key]["after"]
+        lines.append(f"| {name} | {b['mean']:.4g} / {b['median']:.4g} / {b['max']:.4g} | "
+                     f"{a['mean']:.4g} / {a['median']:.4g} / {a['max']:.4g} |")
+    lines += ["", f"Within-sequence registration: mean consecutive-frame distance {reg['within_sequence_mean']:.4g}.",
+              f"4D Karcher mean energy per round: {', '.join(f'{e:.4g}' for e in r['mean_energies'])}.", "",
+              "## Modes", "", "| mode | variance | share |", "|---|---|---|"]
+    for i, (v, s) in enumerate(zip(r["modes"]["variance"], r["modes"]["variance_ratio"])):
+        lines.append(f"| {i + 1} | {v:.4g} | {100 * s:.1f} % |")
+    rec = r["reconstruction"]
+    lines += ["", f"Reconstruction of the training plants by the modes (4D distance): mean {rec['mean']:.4g}, "
+              f"max {rec['max']:.4g}.", "", "## Timings (s)", ""]
+    lines += [f"* {k}: {v:.3f}" for k, v in r["seconds"].items()]
+    if r.get("figures"):
+        lines += ["", "## Figures", ""] + [f"![{Path(f).stem}]({Path(f).name})" for f in r["figures"]]
+    return "\n".join(lines) + "\n"
+
+
+def time_columns(seq: Any, columns: int = FIGURE_COLUMNS) -> Any:
+    """The frames of a 4D tree at ``columns`` evenly spaced indices, first and last included (a figure's columns;
+    fewer if the sequence is shorter).
+
+    Example (any sequence indexable by a list of indices, as a :class:`~torch4dtree.trees.TreeSequence`):
+        >>> import numpy as np
+        >>> time_columns(np.arange(10), 4)
+        array([0, 3, 6, 9])
+    """
+    n = len(seq)
+    idx = sorted({round(j * (n - 1) / max(columns - 1, 1)) for j in range(columns)})
+    return seq[idx]
+
+
+def _titled(title: str, note: str | None) -> str:
+    return f"{title}\n{note}" if note else title
+
+
+def write_model_figures(model: Any, out: Path, size: int, seed: int, n_samples: int = 3, note: str | None = None
+                        ) -> list[str]:
+    """``mean.png``, ``modes.png``, ``samples.png`` in ``out`` (module doc; ``size`` pixels per grid cell, ``seed``
+    of the samples); ``note`` (e.g. what the model was fitted on) is a second title line of each. Returns the
+    paths written."""
+    import torch
+
+    from ..render import render_grid, save_image
+
+    written = []
+    mean = model.decode_trajectories(model.mean.trajectory[None].to(model.pca.mean), ["mean"])[0]
+    sub = time_columns(mean)
+    img = render_grid([sub], row_labels=["4D mean"], col_labels=[f"t = {t:.3g}" for t in sub.times.tolist()],
+                      title=_titled("mean 4D tree", note), size=size, color="label")
+    written.append(str(save_image(out / "mean.png", img)))
+    rows, labels = [], []
+    for i, mode in enumerate(model.modes(MODE_TAUS, modes=min(FIGURE_MODES, model.n_modes))):
+        for t, seq in zip(MODE_TAUS, mode):
+            rows.append(time_columns(seq))
+            labels.append(f"mode {i + 1}, {t:+.0f} sd")
+    img = render_grid(rows, row_labels=labels, title=_titled("modes of variation (rows) over time (columns)", note),
+                      size=size, color="label")
+    written.append(str(save_image(out / "modes.png", img)))
+    samples = model.sample(n_samples, generator=torch.Generator().manual_seed(seed))
+    img = render_grid([time_columns(s) for s in samples], row_labels=[s.name for s in samples],
+                      title=_titled("samples over time", note), size=size, color="label")
+    written.append(str(save_image(out / "samples.png", img)))
+    return written
+
+
+def write_model_report(model: Any, out: Path, dataset: str | Path, seqs: Sequence[Any], seconds: dict[str, float],
+                       figures: bool = True, size: int = 256, seed: int = 0) -> dict[str, Any]:
+    """Write the figures (with ``figures``), ``report.json`` and ``report.md`` of ``model`` into the folder ``out``
+    (existing files are not replaced); returns the report (:func:`model_report`, with ``figures``: their paths)."""
+    from ..io.files import write_text_safely
+
+    report = model_report(model, dataset, seqs, seconds)
+    if figures:
+        t0 = time.perf_counter()
+        report["figures"] = write_model_figures(model, out, size, seed)
+        report["seconds"]["figures"] = time.perf_counter() - t0
+    write_text_safely(out / "report.json", json.dumps(report, indent=2))
+    write_text_safely(out / "report.md", model_report_markdown(report))
+    return report
