@@ -8,8 +8,9 @@ designed these shapes, so they test whether a generative model reproduces plants
 Each plant is one CPlantBox simulation (its own random seed: the parameter files' standard deviations apply) with a
 per-plant jitter of the growth rates and maximal lengths (a log-normal factor, ``--jitter``) and organs that
 start growing ``--plastochron`` days after they are created (so organs appear over time), observed on
-``--frames`` irregular days between ``--first-day`` and ``--last-day`` (per plant jittered). Each frame is the shoot
-(stems and leaf midribs; roots and the seed dropped), a tree rooted at the stem base:
+``--frames`` irregular days in the kind's span (:data:`KINDS`, jittered per plant). Each frame is the shoot (stems
+and leaf midribs; roots and the seed dropped; organs under 2 mm, just created, left out), a tree rooted at the stem
+base:
 
 * written as SWC (``id type x y z radius parent``), millimetres, z up, the base at the origin (the lowest point
   but for drooping leaves); chains between branch points and tips are thinned to about ``--spacing`` mm;
@@ -17,12 +18,12 @@ start growing ``--plastochron`` days after they are created (so organs appear ov
   stem's label), so one organ keeps its label over a plant's frames;
 * ``times.json`` ``{file name: day}`` beside the frames; ``population.json`` records the settings.
 
-Layout (what ``torch4dtree.io.read_dataset`` and ``morpho_eval.py`` read)::
+Layout (what ``torch4dtree.io.read_dataset`` and :mod:`torch4dtree.evaluate.morphometrics` read)::
 
     OUT/<kind>_<NN>/day_<DDD>.swc, times.json
     OUT/population.json   (settings and per-plant seeds; not dataset.json, which marks the package's synth output)
 
-usage: PYTHONPATH=. .venv-bench/bin/python benchmarks/simulate_population.py --kind maize --plants 40 --out DIR
+usage: PYTHONPATH=. .venv-bench/bin/python benchmarks/simulate_population.py --kind wheat --plants 40 --out DIR
 """
 
 from __future__ import annotations
