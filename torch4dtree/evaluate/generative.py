@@ -83,6 +83,7 @@ from ..space.pca import principal_axes
 from ..temporal.registration import register_trajectories, time_warp_trajectory
 from ..temporal.trajectory import resample_trajectory
 from .data import EvalData, EvalSettings, Plant4D, primary_source
+from .morphometrics import compare_populations, population_curves
 from .paper import SECONDS
 from .stats import fmt, md_table, summary
 
@@ -111,6 +112,8 @@ DECODE_BATCH, QUICK_DECODE_BATCH = 8, 2
 PAPER_SECONDS = {"sample": SECONDS["sample"], "mean": SECONDS["mean_4d"]}
 CHUNK = 2048  # pairs per registration call (memory)
 MEAN_REPEATS = 3  # warm refits of the 4D mean timed per fold (median): the fit's own first call loads kernels
+MORPHO_SAMPLES, QUICK_MORPHO_SAMPLES = 10, 2  # decoded samples per generator and fold for the morphometrics
+MORPHO_KEYS = ("worst_ratio", "ks_max", "one_nna")
 
 
 # ----------------------------------------------------------------------------- ground metric
@@ -297,6 +300,20 @@ def _forecast(model: FourDTreeModel, plant: Plant4D, frames: Tensor) -> dict[str
             "gain": float(f.gain), "seconds": seconds}
 
 
+def _morphometrics(model: FourDTreeModel, pools: dict[str, Tensor], train: list[Plant4D], held: list[Plant4D],
+                   n: int) -> dict[str, dict[str, Any]]:
+    """Each generator's samples against the held-out plants by :func:`~torch4dtree.evaluate.morphometrics.
+    compare_populations`: the first ``n`` trajectories of its pool ``(P, n_t, k)`` decoded to skeletons; the
+    memorising generator's samples are the training plants as read. Independent of the ground metric: it sees
+    plants that shrink, lose organs or sprout extra ones."""
+    real = population_curves([p.sequence for p in held])
+    out = {}
+    for name, pool in pools.items():
+        seqs = [p.sequence for p in train] if name == "memorise" else model.decode_trajectories(pool[:n])
+        out[name] = compare_populations(real, population_curves(seqs))
+    return out
+
+
 def _fold(train: list[Plant4D], held: list[Plant4D], settings: EvalSettings, gen: torch.Generator
           ) -> dict[str, Any]:
     model, fit_seconds = _fit(train, settings)
@@ -317,9 +334,11 @@ def _fold(train: list[Plant4D], held: list[Plant4D], settings: EvalSettings, gen
     d_rt = distance_matrix(r_alpha, t_alpha)
     per_draw: dict[str, list[dict[str, float]]] = {}
     novel: dict[str, dict[str, float]] = {}
+    pools: dict[str, Tensor] = {}
     t0 = time.perf_counter()
     for name in GENERATORS:
         pool, idx = _pool(name, model, t_alpha[..., :k], h, draws, gen)
+        pools[name] = pool
         pool = _pad(pool, r)
         d_pr = d_rt.T if name == "memorise" else distance_matrix(pool, r_alpha)  # the training plants: known
         d_ss = _within_draw(pool, idx)
@@ -327,6 +346,9 @@ def _fold(train: list[Plant4D], held: list[Plant4D], settings: EvalSettings, gen
         if name in ("model", "paper_scalar"):
             novel[name] = novelty(distance_matrix(pool[:NOVELTY_SAMPLES], t_alpha), d_tt)
     metric_seconds = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    morpho = _morphometrics(model, pools, train, held, QUICK_MORPHO_SAMPLES if settings.quick else MORPHO_SAMPLES)
+    morpho_seconds = time.perf_counter() - t0
     sanity = {m: v for m, v in set_metrics(d_tt, d_tt, d_tt).items() if m in METRICS}  # training set memorised
 
     # reconstruction through the model, beside the mean and the nearest training plant
@@ -367,14 +389,15 @@ def _fold(train: list[Plant4D], held: list[Plant4D], settings: EvalSettings, gen
         "train": [p.name for p in train], "held_out": [p.name for p in held], "modes": model.n_modes,
         "tree_components": k, "extra_dimensions": r, "n_t": model.n_t, "draws": draws,
         "mode_variance_ratio": [float(x) for x in model.pca.explained_variance_ratio],
-        "per_draw": per_draw, "novelty": novel, "sanity": sanity, "plants": plants,
+        "per_draw": per_draw, "novelty": novel, "sanity": sanity, "plants": plants, "morphometrics": morpho,
         "training_reconstruction": [float(x) for x in recon_t], "training_to_mean": [float(x) for x in mean_t],
         "training_nn": [float(x) for x in nn_t],
         "held_out_pairs": [float(d_rr[i, j]) for i in range(h) for j in range(i + 1, h)],
         "seconds": {"fit": fit_seconds, "mean": _mean_seconds(model),
                     "mean_in_fit": float(model.report_["seconds"]["mean"]),
                     "encode_per_plant": encode_seconds, "metrics": metric_seconds,
-                    "sample_per_plant": sample_seconds, "decode_per_plant": decode_seconds},
+                    "sample_per_plant": sample_seconds, "decode_per_plant": decode_seconds,
+                    "morphometrics": morpho_seconds},
     }
 
 
@@ -406,6 +429,8 @@ def _kind(plants: list[Plant4D], settings: EvalSettings, offset: int, progress: 
                     for name in ("model", "paper_scalar")},
         "sanity": {m: max(d["sanity"][m] for d in done) if m != "cov" else min(d["sanity"][m] for d in done)
                    for m in METRICS},
+        "morphometrics": {name: {m: summary(d["morphometrics"][name][m] for d in done) for m in MORPHO_KEYS}
+                          for name in GENERATORS},
         "held_out_pairs": summary(x for d in done for x in d["held_out_pairs"]),
         "reconstruction": {
             "held_out": summary(p["reconstruction"] for p in held_plants),
@@ -526,6 +551,14 @@ def markdown(report: dict[str, Any]) -> list[str]:
                             f"{fmt(gs[name]['nna_samples']['mean'], 2, True)} / "
                             f"{fmt(gs[name]['nna_real']['mean'], 2, True)}", g["generators"][name]]
                            for name in GENERATORS])
+        mo = r.get("morphometrics")
+        if mo:
+            lines += ["", "Morphometrics (decoded samples against the held-out plants; length, height, spread, tips, "
+                      "branch points at ages 1/4 to 1; the memorising generator's samples are the training plants; "
+                      "ideal: worst median ratio 1, KS 0, 1-NNA 50 %):", ""]
+            lines += md_table(["generator", "worst median ratio", "KS max", "1-NNA"],
+                              [[name, _pm(mo[name]["worst_ratio"]), _pm(mo[name]["ks_max"]),
+                                _pm(mo[name]["one_nna"], True)] for name in GENERATORS])
         s, nv, rec = r["sanity"], r["novelty"], r["reconstruction"]
         lines += ["", f"Held-out plants are {_pm(r['held_out_pairs'])} apart and {_pm(rec['held_out_to_mean'])} "
                   "from the 4D mean: where the first is larger, a generator that stays near the mean makes every "
