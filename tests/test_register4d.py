@@ -78,7 +78,7 @@ def test_spatial_stage_keeps_the_smallest_candidate():
     layouts (the registration's warps, its correspondence with identity warps, index order, and the last two with
     the 4D-distance warps of fourd_warps on every matched slot or on the childless ones)."""
     from torch4dtree.temporal.registration import register_trajectories
-    from torch4dtree.temporal.spatiotemporal import _trajectories, combine_sequences, fourd_warps, representative_tree
+    from torch4dtree.temporal.spatiotemporal import combine_sequences, fourd_warps, layout_trajectories, representative_tree
     from torch4dtree.trees.registration import effective_lambdas, index_order_matches, register_trees
 
     a, b = (p.sequence for p in synthetic_dataset("bean", 2, 3, n_frames=5, T=16, dtype=torch.float64))
@@ -96,7 +96,7 @@ def test_spatial_stage_keeps_the_smallest_candidate():
 
     def distance(matches, gamma):
         layout = combine_sequences(A, B, matches, gamma, eye, lam)
-        _, x, y = _trajectories(layout, len(A), A.times, B.times, 16, None, fine)
+        _, x, y = layout_trajectories(layout, len(A), A.times, B.times, 16, None, fine)
         return layout, float(register_trajectories(x, y).distance_before)
 
     parents = set(B.aligned.slot_parent.tolist())

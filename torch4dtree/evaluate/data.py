@@ -21,7 +21,7 @@ import torch
 
 from ..io import LoadOptions, read_sequence, sequence_folders
 from ..io.dataset import DatasetError
-from ..temporal.spatiotemporal import CROSS_LP, CROSS_ORDER_TOL, CROSS_POSITIONS
+from ..settings import CROSS_LP, CROSS_ORDER_TOL, CROSS_POSITIONS
 from ..trees.structures import TreeSequence
 
 __all__ = ["EvalData", "EvalSettings", "Plant4D", "load_eval_data", "primary_source", "sources_of"]

@@ -150,7 +150,7 @@ def index_order_registration(res: SpatiotemporalRegistration) -> SpatiotemporalR
     """``res`` as it was before registration: the index-order correspondence of the two 4D trees (identity warps
     and rotation) and the identity time warp, so that ``.geodesic()`` is the paper's Fig. 8 (its length is
     ``res.distance_before``)."""
-    from ..temporal.spatiotemporal import _trajectories, combine_sequences, representative_tree
+    from ..temporal.spatiotemporal import combine_sequences, layout_trajectories, representative_tree
     from ..trees.registration import index_order_matches
 
     n_t = len(res.times)
@@ -163,7 +163,7 @@ def index_order_registration(res: SpatiotemporalRegistration) -> SpatiotemporalR
     ident = torch.linspace(0, 1, rep_b.T, dtype=torch.float64).expand(rep_b.points.shape[0], -1)
     layout = combine_sequences(A, B, matches, ident, torch.eye(rep_b.dim, dtype=torch.float64), res.layout.lambdas)
     # as register4d builds its "before" state (all components: nothing of the shapes is lost)
-    pca, alpha_a, alpha_b = _trajectories(layout, len(A), A.times, B.times, n_t, None)
+    pca, alpha_a, alpha_b = layout_trajectories(layout, len(A), A.times, B.times, n_t, None)
     return res._replace(pca=pca, layout=layout, alpha_ref=alpha_a, alpha_mov=alpha_b, alpha_mov_registered=alpha_b,
                         alpha_mov_fine=None, matches=matches, warp=ident_t)
 

@@ -65,9 +65,10 @@ from tqdm.auto import tqdm
 from ..bench.temporal import PAPER_TEMPORAL_SECONDS
 from ..curves.warps import random_warp
 from ..data.synthetic import evaluate_warp
+from ..settings import TIME_WEIGHT
 from ..space.pca import TreePCA
 from ..temporal import AlignedSequence, SpatiotemporalRegistration, register4d, register_sequence
-from ..temporal.registration import TIME_WEIGHT, register_trajectories
+from ..temporal.registration import register_trajectories
 from ..temporal.trajectory import fine_size, resample_trajectory
 from ..trees.structures import TreeSequence
 from .data import EvalData, EvalSettings, Plant4D, primary_source

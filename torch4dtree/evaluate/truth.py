@@ -170,12 +170,9 @@ def _within_rows(plants: Sequence[Plant4D], lambdas: Sequence[float], progress: 
 def default_within_lambdas(lambdas: Sequence[float]) -> tuple[float, float, float]:
     """``lambdas`` with the ``lp`` of :func:`~torch4dtree.temporal.register_sequence`'s default (tuned for
     identities between consecutive frames; the evaluation's ``lambdas`` may use another)."""
-    import inspect
+    from ..settings import WITHIN_LAMBDAS
 
-    from ..temporal.within import register_sequence
-
-    lp = float(inspect.signature(register_sequence).parameters["lambdas"].default[2])
-    return float(lambdas[0]), float(lambdas[1]), lp
+    return float(lambdas[0]), float(lambdas[1]), WITHIN_LAMBDAS[2]
 
 
 def _cross_lambdas(settings: EvalSettings) -> tuple[float, float, float]:
@@ -219,7 +216,8 @@ def _deterministic() -> Iterator[None]:
 def _oracle_warp(a: Plant4D, b: Plant4D, settings: EvalSettings) -> Tensor:
     """The temporal registration of ``b`` onto ``a`` in the ground-truth (organ label) layout."""
     from ..bench.temporal import _label_features, _pca_trajectories
-    from ..temporal.registration import TIME_WEIGHT, register_trajectories
+    from ..settings import TIME_WEIGHT
+    from ..temporal.registration import register_trajectories
 
     seqs = [a.sequence.to(torch.float64), b.sequence.to(torch.float64)]
     # a label may name several branches of a frame (spurs, organs the rule split): _label_features writes them

@@ -18,7 +18,7 @@ from ..space.fitted import FittedModule, NotFittedError
 from ..space.pca import check_components, principal_axes, variance_components
 from ..temporal.registration import TemporalRegistration, register_trajectories, time_warp_trajectory
 from ..temporal.trajectory import trajectory_from_srvf, trajectory_srvf
-from ..temporal.within import _inverse_at
+from ..temporal.within import inverse_at
 
 # trajectories decoded per chunk by TrajectoryPCA.trajectories (see there)
 SAMPLE_CHUNK = 1024
@@ -59,7 +59,7 @@ def centre_warps(warp: Tensor) -> Tensor:
     N, n_t = warp.shape
     grid = torch.linspace(0, 1, n_t, dtype=warp.dtype, device=warp.device)
     mean = warp.mean(0)
-    inverse = _inverse_at(mean.expand(n_t, n_t), grid)  # gamma_bar^{-1} on the grid
+    inverse = inverse_at(mean.expand(n_t, n_t), grid)  # gamma_bar^{-1} on the grid
     return time_warp_trajectory(warp[..., None], inverse.expand(N, n_t))[..., 0]
 
 
