@@ -26,7 +26,7 @@ __all__ = [
     "FALLBACK_ROTATION", "HIERARCHIES", "ORDER_TOL", "POSITIONS", "ROTATIONS", "TEMPORAL_BACKENDS",
     "TEMPORAL_NEIGHBOURHOOD", "TEMPORAL_REFINE", "TIME_WEIGHT", "WITHIN_LAMBDAS", "CrossSettings", "ModelSettings",
     "RegistrationSettings", "TemporalSettings", "check_at_least", "check_choice", "check_lambdas",
-    "check_optional_number", "check_share",
+    "check_optional_number", "check_share", "setting_error",
 ]
 
 # global rotation searched by a registration: data in one frame, about the up axis, or any (docs/method.md §3)
@@ -54,8 +54,9 @@ TEMPORAL_REFINE = 16
 TEMPORAL_BACKENDS = ("auto", "numba", "torch")
 
 
-def _error(message: str) -> ValueError:
-    """A :class:`~torch4dtree.trees.TreeError` (imported only when there is an error to raise)."""
+def setting_error(message: str) -> ValueError:
+    """A :class:`~torch4dtree.trees.TreeError` for a bad setting (the tree module imported only when there is an
+    error to raise, so this module stays torch-free)."""
     from .trees.structures import TreeError
 
     return TreeError(message)
@@ -72,7 +73,7 @@ def check_choice(name: str, value: object, choices: Sequence[object]) -> None:
         torch4dtree.trees.structures.TreeError: rotation must be one of ('none', 'vertical', 'so3'), got 'spin'
     """
     if value not in choices:
-        raise _error(f"{name} must be one of {tuple(choices)}, got {value!r}")
+        raise setting_error(f"{name} must be one of {tuple(choices)}, got {value!r}")
 
 
 def _is_number(value: object) -> bool:
@@ -89,7 +90,7 @@ def check_at_least(name: str, value: object, low: int) -> int:
         torch4dtree.trees.structures.TreeError: n_t must be an integer >= 2, got 0
     """
     if not (_is_number(value) and float(value) == int(value) and value >= low):  # type: ignore[operator]
-        raise _error(f"{name} must be an integer >= {low}, got {value!r}")
+        raise setting_error(f"{name} must be an integer >= {low}, got {value!r}")
     return int(value)  # type: ignore[call-overload]
 
 
@@ -98,14 +99,14 @@ def check_optional_number(name: str, value: object) -> float | None:
     if value is None:
         return None
     if not (_is_number(value) and 0 <= value < math.inf):  # type: ignore[operator]
-        raise _error(f"{name} must be null or a finite number >= 0, got {value!r}")
+        raise setting_error(f"{name} must be null or a finite number >= 0, got {value!r}")
     return float(value)  # type: ignore[arg-type]
 
 
 def check_share(name: str, value: object) -> float:
     """``value`` as a ``float`` if it is in ``(0, 1]``; else a TreeError naming the setting."""
     if not (_is_number(value) and 0 < value <= 1):  # type: ignore[operator]
-        raise _error(f"{name} must be in (0, 1], got {value!r}")
+        raise setting_error(f"{name} must be in (0, 1], got {value!r}")
     return float(value)  # type: ignore[arg-type]
 
 
@@ -119,9 +120,9 @@ def check_lambdas(lambdas: Sequence[float], name: str = "lambdas") -> tuple[floa
     try:
         lam = tuple(float(x) for x in lambdas)
     except (TypeError, ValueError):
-        raise _error(f"{name} must be (lm > 0, ls > 0, lp >= 0), got {lambdas!r}") from None
+        raise setting_error(f"{name} must be (lm > 0, ls > 0, lp >= 0), got {lambdas!r}") from None
     if len(lam) != 3 or not all(math.isfinite(x) and x >= 0 for x in lam) or lam[0] <= 0 or lam[1] <= 0:
-        raise _error(f"{name} must be (lm > 0, ls > 0, lp >= 0), got {tuple(lambdas)}")
+        raise setting_error(f"{name} must be (lm > 0, ls > 0, lp >= 0), got {tuple(lambdas)}")
     return lam  # type: ignore[return-value]
 
 
@@ -132,11 +133,11 @@ def _optional_int(name: str, value: object, low: int) -> int | None:
 def _from_dict(cls: type, data: Mapping[str, Any], what: str) -> Any:
     """``cls(**data)`` with unknown keys rejected by name."""
     if not isinstance(data, Mapping):
-        raise _error(f"{what} must be a mapping of settings, got {type(data).__name__}")
+        raise setting_error(f"{what} must be a mapping of settings, got {type(data).__name__}")
     known = {f.name for f in dataclasses.fields(cls)}
     unknown = sorted(set(data) - known)
     if unknown:
-        raise _error(f"unknown {what} setting(s) {unknown}; known: {sorted(known)}")
+        raise setting_error(f"unknown {what} setting(s) {unknown}; known: {sorted(known)}")
     return cls(**data)
 
 
@@ -187,20 +188,20 @@ class RegistrationSettings:
         if self.up is not None:
             up = tuple(float(x) for x in self.up)
             if len(up) != 3 or not all(math.isfinite(x) for x in up) or not any(up):
-                raise _error(f"up must be null or a non-zero 3-vector, got {self.up!r}")
+                raise setting_error(f"up must be null or a non-zero 3-vector, got {self.up!r}")
             object.__setattr__(self, "up", up)
         object.__setattr__(self, "n_starts", check_at_least("n_starts", self.n_starts, 0))
         object.__setattr__(self, "max_iters", check_at_least("max_iters", self.max_iters, 1))
         tol = check_optional_number("tol", self.tol)
         if tol is None:
-            raise _error("tol must be a finite number >= 0, got None")
+            raise setting_error("tol must be a finite number >= 0, got None")
         object.__setattr__(self, "tol", tol)
         object.__setattr__(self, "neighbourhood", check_at_least("neighbourhood", self.neighbourhood, 1))
         object.__setattr__(self, "band", _optional_int("band", self.band, 1))
         object.__setattr__(self, "coarse", _optional_int("coarse", self.coarse, 2))
         object.__setattr__(self, "refine", check_at_least("refine", self.refine, 0))
         if not isinstance(self.prune, bool):
-            raise _error(f"prune must be true or false, got {self.prune!r}")
+            raise setting_error(f"prune must be true or false, got {self.prune!r}")
 
     def register(self, trees: Any, reference: Any, lambdas: Sequence[float], rotation: str, *, positions: str,
                  order_tol: float | None, lp_relative: bool, symmetric: bool) -> list[Any]:
@@ -364,14 +365,14 @@ class ModelSettings:
         object.__setattr__(self, "tree_variance", check_share("tree_variance", self.tree_variance))
         object.__setattr__(self, "mode_variance", check_share("mode_variance", self.mode_variance))
         if not (_is_number(self.c) and 0 < self.c < math.inf):
-            raise _error(f"c must be a positive number, got {self.c!r}")
+            raise setting_error(f"c must be a positive number, got {self.c!r}")
         object.__setattr__(self, "c", float(self.c))
         object.__setattr__(self, "medoid_candidates", check_at_least("medoid_candidates", self.medoid_candidates, 1))
         object.__setattr__(self, "mean_iters", check_at_least("mean_iters", self.mean_iters, 1))
         for name, cls in (("registration", RegistrationSettings), ("cross", CrossSettings),
                           ("temporal", TemporalSettings)):
             if not isinstance(getattr(self, name), cls):
-                raise _error(f"{name} must be a {cls.__name__}, got {type(getattr(self, name)).__name__}")
+                raise setting_error(f"{name} must be a {cls.__name__}, got {type(getattr(self, name)).__name__}")
 
     def to_dict(self) -> dict[str, Any]:
         """The settings as a plain dict (nested dicts for the stages, lists for tuples)."""
@@ -382,12 +383,12 @@ class ModelSettings:
         """Settings from :meth:`to_dict`'s dict, or from the flat form older checkpoints saved (``positions``,
         ``cross_lp``, ``cross_order_tol`` at the top level); missing keys default, unknown keys are errors."""
         if not isinstance(data, Mapping):
-            raise _error(f"model settings must be a mapping, got {type(data).__name__}")
+            raise setting_error(f"model settings must be a mapping, got {type(data).__name__}")
         data = dict(data)
         flat = {_FLAT_CROSS[k]: data.pop(k) for k in list(data) if k in _FLAT_CROSS}
         cross = data.pop("cross", None)
         if flat and cross is not None:
-            raise _error(f"model settings give both 'cross' and {sorted(flat)}")
+            raise setting_error(f"model settings give both 'cross' and {sorted(flat)}")
         out = {"cross": CrossSettings.from_dict(cross if cross is not None else flat)}
         for name, stage in (("registration", RegistrationSettings), ("temporal", TemporalSettings)):
             value = data.pop(name, None)

@@ -1,4 +1,4 @@
-"""Exact truncated standard normal coefficients (SPEC §5, paper §5.3): the generative model's sampler.
+"""Exact truncated standard normal coefficients (docs/method.md §5, paper §5.3): the generative model's sampler.
 
 Each mode's coefficient is drawn from ``N(0, 1)`` conditioned on ``[-c, c]`` by the inverse CDF: ``u`` uniform on
 ``[Phi(-c), Phi(c)]``, ``z = Phi^{-1}(u)`` (computed in float64, so ``c`` up to about 8 stays exact), never by

@@ -1,4 +1,4 @@
-"""Tree PCA (SPEC §4, paper §4.1): principal components of registered trees' weighted SRVFT features.
+"""Tree PCA (docs/method.md §4, paper §4.1): principal components of registered trees' weighted SRVFT features.
 
 In a common slot layout :meth:`AlignedTrees.features` is a flat vector whose Euclidean norm of differences
 is the tree metric, so PCA is an SVD of the centred features. Coefficients are projections on orthonormal
@@ -16,8 +16,8 @@ import torch
 from torch import Tensor
 
 from ..curves.srvf import srvf_sq_norm
+from ..settings import check_lambdas
 from ..trees.aligned import AlignedTrees, Lambdas, SlotRows, rows_to_trees, slot_weights
-from ..trees.registration import _check_lambdas
 from ..trees.structures import Trees
 from .fitted import FittedModule, NotFittedError
 
@@ -110,7 +110,7 @@ class TreePCA(FittedModule):
         if not isinstance(state, dict) or state.get("version") != 1:
             raise ValueError("not a TreePCA state (missing or unknown version)")
         self.n_components, self.variance = state["n_components"], state["variance"]
-        self.lambdas = _check_lambdas(state["lambdas"])
+        self.lambdas = check_lambdas(state["lambdas"])
         self.M, self.d, self.n_samples_ = state["M"], state["d"], state["n_samples"]
         self.total_variance_ = state["total_variance"]
 
