@@ -385,10 +385,11 @@ class ModelSettings:
         if not isinstance(data, Mapping):
             raise setting_error(f"model settings must be a mapping, got {type(data).__name__}")
         data = dict(data)
-        flat = {_FLAT_CROSS[k]: data.pop(k) for k in list(data) if k in _FLAT_CROSS}
+        flat_keys = sorted(k for k in data if k in _FLAT_CROSS)
+        flat = {_FLAT_CROSS[k]: data.pop(k) for k in flat_keys}
         cross = data.pop("cross", None)
         if flat and cross is not None:
-            raise setting_error(f"model settings give both 'cross' and {sorted(flat)}")
+            raise setting_error(f"model settings give both 'cross' and {flat_keys}")
         out = {"cross": CrossSettings.from_dict(cross if cross is not None else flat)}
         for name, stage in (("registration", RegistrationSettings), ("temporal", TemporalSettings)):
             value = data.pop(name, None)
