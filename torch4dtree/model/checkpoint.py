@@ -35,17 +35,11 @@ def save_model(model: FourDTreeModel, path: str | Path, config: dict[str, Any] |
                overwrite: bool = False) -> Path:
     """Write ``model`` (fitted) to ``path`` atomically; refuses an existing file unless ``overwrite``.
 
-    Example:
-        >>> import tempfile
-        >>> from pathlib import Path
-        >>> from torch4dtree.data import synthetic_plant
-        >>> from torch4dtree.settings import ModelSettings
-        >>> plants = [synthetic_plant("maize", i, n_frames=3, T=8).sequence for i in range(3)]
-        >>> model = FourDTreeModel(ModelSettings(n_t=4, medoid_candidates=1)).fit(plants)
-        >>> with tempfile.TemporaryDirectory() as d:
-        ...     back = load(save_model(model, Path(d) / "model.pt"))
-        >>> back.settings == model.settings
-        True
+    Example (a fitted model round-trips: ``load(save_model(model, path)).settings == model.settings``):
+        >>> save_model(FourDTreeModel(), "model.pt")
+        Traceback (most recent call last):
+        ...
+        ValueError: the model is not fitted: nothing to save
     """
     if not isinstance(model, FourDTreeModel):
         raise TypeError(f"expected a FourDTreeModel, got {type(model).__name__}")
@@ -82,7 +76,17 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
 
 
 def load(path: str | Path, map_location: str | torch.device = "cpu") -> FourDTreeModel:
-    """Rebuild a :class:`FourDTreeModel` from a checkpoint; ``model.checkpoint_config`` holds the run's config."""
+    """Rebuild a :class:`FourDTreeModel` from a checkpoint; ``model.checkpoint_config`` holds the run's config.
+
+    Settings saved in the flat form (``registration`` / ``temporal`` dicts, ``positions`` / ``cross_lp`` /
+    ``cross_order_tol`` at the top level) are rebuilt as :class:`~torch4dtree.settings.ModelSettings`.
+
+    Example:
+        >>> load("no/such/model.pt")
+        Traceback (most recent call last):
+        ...
+        torch4dtree.model.checkpoint.CheckpointError: no/such/model.pt: no such checkpoint file
+    """
     payload = read_checkpoint(path)
     try:
         model = FourDTreeModel(ModelSettings.from_dict(payload["args"]))

@@ -32,6 +32,11 @@ class TruncatedNormalSampler(nn.Module):
         c: truncation bound (``> 0``; default 3 as in the paper).
 
     Buffers: ``c ()`` (float64, so ``.to()`` moves it; the samples take the requested dtype).
+
+    Example:
+        >>> z = TruncatedNormalSampler(3, c=1.5)(1000, generator=torch.Generator().manual_seed(0))
+        >>> z.shape, bool(z.abs().max() <= 1.5)
+        (torch.Size([1000, 3]), True)
     """
 
     def __init__(self, n_modes: int, c: float = 3.0) -> None:

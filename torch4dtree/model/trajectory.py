@@ -162,6 +162,14 @@ class TrajectoryPCA(FittedModule):
     Fitted buffers: ``mean (D,)`` (``D = k * n_t``, :func:`flatten_srvf`), ``components (m, D)`` orthonormal,
     ``explained_variance (m,)`` (``u_i``, with ``1/(N-1)``), ``explained_variance_ratio (m,)``. Copies of one
     trajectory give one component of zero variance.
+
+    Example:
+        >>> from torch4dtree.temporal import trajectory_srvf
+        >>> t = torch.linspace(0, 1, 8, dtype=torch.float64)[:, None]
+        >>> start, q = trajectory_srvf(torch.stack([torch.cat([t, a * t ** 2], 1) for a in (0.5, 1.0, 2.0)]))
+        >>> pca = TrajectoryPCA(n_components=1).fit(start, q)
+        >>> pca.trajectories(torch.zeros(1, 1, dtype=torch.float64)).shape
+        torch.Size([1, 8, 2])
     """
 
     _fitted_buffers = ("mean", "components", "explained_variance", "explained_variance_ratio")

@@ -317,6 +317,13 @@ class KarcherMean(FittedModule):
     and ``seconds`` (wall time of the round, the initialisation included in round 0).
     ``n_iter_ = len(history)``, ``converged_`` whether ``tol`` was met before ``max_iters``, ``init_index_`` the
     tree the mean started from.
+
+    Example:
+        >>> from torch4dtree.data import synthetic_plant
+        >>> trees = synthetic_plant("maize", 0, n_frames=3, T=8).sequence.frames
+        >>> km = KarcherMean(max_iters=2, progress=False).fit(trees)
+        >>> km.mean_tree().num_trees, km.transform(trees).distance.shape
+        (1, torch.Size([3]))
     """
 
     _fitted_buffers = ("mean_q", "mean_s", "mean_root", "slot_parent", "slot_depth")

@@ -81,6 +81,15 @@ class TreePCA(FittedModule):
     ``mean_root (d,)`` (the roots are not features: decoding starts there), and the layout
     ``slot_parent (S,)``, ``slot_depth (S,)``; ``lambdas``, ``M``, ``d`` travel in the extra state, so a loaded
     module decodes on its own.
+
+    Example:
+        >>> from torch4dtree.data import synthetic_plant
+        >>> from torch4dtree.space import KarcherMean
+        >>> trees = synthetic_plant("maize", 0, n_frames=4, T=8).sequence.frames
+        >>> aligned = KarcherMean(max_iters=1, progress=False).fit_transform(trees).aligned
+        >>> pca = TreePCA(n_components=2).fit(aligned)
+        >>> pca.transform(aligned).shape, pca.decode(torch.zeros(1, 2, dtype=torch.float64)).num_trees
+        (torch.Size([4, 2]), 1)
     """
 
     _fitted_buffers = ("mean", "components", "explained_variance", "explained_variance_ratio", "mean_root",

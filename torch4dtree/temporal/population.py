@@ -110,8 +110,6 @@ class Population(FittedModule):
         >>> pop = Population(n_t=4, medoid_candidates=1).fit(plants)
         >>> pop.trajectories.shape[:2]
         torch.Size([2, 4])
-        >>> pop.transform(plants[0]).trajectory.shape[0]
-        4
     """
 
     _fitted_buffers = ("ref_points", "ref_parent", "ref_s", "trajectories", "time_spans")
@@ -360,6 +358,13 @@ def fit_population(sequences: Sequence[TreeSequence], lambdas: Sequence[float] =
                    n_components: int | None = None, progress: bool = False, medoid_candidates: int = 3,
                    registration: RegistrationSettings | None = None, cross: CrossSettings | None = None
                    ) -> Population:
-    """``N`` 4D trees in one tree space (module doc): ``Population(...).fit(sequences)``."""
+    """``N`` 4D trees in one tree space (module doc): ``Population(...).fit(sequences)``.
+
+    Example:
+        >>> from torch4dtree.data import synthetic_plant
+        >>> plants = [synthetic_plant("maize", i, n_frames=3, T=8).sequence for i in range(2)]
+        >>> fit_population(plants, n_t=4, medoid_candidates=1).trajectories.shape[:2]
+        torch.Size([2, 4])
+    """
     return Population(lambdas, rotation, n_t, n_components, variance, medoid_candidates, registration,
                       cross).fit(sequences, progress)

@@ -185,6 +185,14 @@ def register_trajectories(alpha_ref: Tensor, alpha_mov: Tensor, neighbourhood: i
     Returns:
         :class:`TemporalRegistration`; ``distance <= distance_before`` always (the identity warp is kept
         when nothing better is found).
+
+    Example:
+        >>> t = torch.linspace(0, 1, 16, dtype=torch.float64)[:, None]
+        >>> ref = torch.cat([t, torch.sin(3 * t)], 1)
+        >>> mov = torch.cat([t ** 2, torch.sin(3 * t ** 2)], 1)  # ref at the warped times t^2
+        >>> r = register_trajectories(ref, mov)
+        >>> bool(r.distance < 0.1 * r.distance_before)
+        True
     """
     factor = _check_trajectories(alpha_ref, alpha_mov)
     if not (isinstance(time_weight, (int, float)) and 0 <= time_weight < float("inf")):
@@ -258,6 +266,13 @@ def geodesic4d(start1: Tensor, q1: Tensor, start2: Tensor, q2: Tensor, steps: in
     Returns:
         ``(steps, ..., n_t, k)``: ``inverse_srvf((1 - tau) q1 + tau q2, (1 - tau) start1 + tau start2)``; the
         first is trajectory 1, the last trajectory 2 (as registered).
+
+    Example:
+        >>> from torch4dtree.temporal import trajectory_srvf
+        >>> t = torch.linspace(0, 1, 8, dtype=torch.float64)[:, None]
+        >>> (s1, q1), (s2, q2) = trajectory_srvf(torch.cat([t, t], 1)), trajectory_srvf(torch.cat([t, 2 * t], 1))
+        >>> geodesic4d(s1, q1, s2, q2, steps=3).shape
+        torch.Size([3, 8, 2])
     """
     if not isinstance(steps, int) or steps < 2:
         raise ValueError(f"steps must be an integer >= 2, got {steps!r}")
