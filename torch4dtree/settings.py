@@ -89,7 +89,8 @@ def check_at_least(name: str, value: object, low: int) -> int:
         ...
         torch4dtree.trees.structures.TreeError: n_t must be an integer >= 2, got 0
     """
-    if not (_is_number(value) and float(value) == int(value) and value >= low):  # type: ignore[operator]
+    if not (_is_number(value) and math.isfinite(value) and float(value) == int(value)  # type: ignore[arg-type]
+            and value >= low):  # type: ignore[operator]
         raise setting_error(f"{name} must be an integer >= {low}, got {value!r}")
     return int(value)  # type: ignore[call-overload]
 

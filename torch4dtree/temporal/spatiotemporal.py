@@ -1,4 +1,4 @@
-"""Spatiotemporal registration of two 4D trees (SPEC §5, paper §4.2) and their 4D geodesic.
+"""Spatiotemporal registration of two 4D trees (docs/method.md §5, paper §4.2) and their 4D geodesic.
 
 The pipeline, for 4D trees ``A`` (reference) and ``B`` (moving):
 
@@ -6,18 +6,18 @@ The pipeline, for 4D trees ``A`` (reference) and ``B`` (moving):
    being one branch identity over the whole sequence.
 2. **Cross-sequence spatial registration**: ``B``'s representative tree (every slot's branch from the latest
    frame holding it, in the sequence's own parameterisation) is registered onto ``A``'s (with the cross-sequence
-   settings ``positions`` / ``cross_lp``, :data:`CROSS_POSITIONS` / :data:`CROSS_LP`). The correspondence,
+   settings, :class:`~torch4dtree.settings.CrossSettings`). The correspondence,
    warps and rotation found are applied to *every* frame of ``B``, so identities stay consistent over time; both
    4D trees are written into one union layout (``A``'s slots, then ``B``'s unmatched ones). The correspondence
    and warps are chosen on one tree while the 4D distance runs over all times, so three candidates are scored
    by the 4D distance and the smallest is kept (``spatial_candidate``): the registration as found
    (``"registered"``), its correspondence with identity warps (``"correspondence"``: a warp fitted to a
-   branch's latest shape can misfit its younger frames; it was the smallest on 7 of 16 Pheno4D pairs), and the
-   index-order correspondence (``"index_order"``: ``B``'s slots matched to ``A``'s by order of ``s``, identity
-   warps; what *before* is measured with, so the spatial stage never ends above it). Where neither registered
+   branch's latest shape can misfit its younger frames), and the index-order correspondence (``"index_order"``:
+   ``B``'s slots matched to ``A``'s by order of ``s``, identity warps; the distance *before* registration is
+   this one's, so the spatial stage never ends above it). Where neither registered
    candidate beats index order, the representatives are registered again with a wider rotation search
-   (``fallback_rotation``, default ``"vertical"``) and its two candidates (``"registered_vertical"``,
-   ``"correspondence_vertical"``) join: 2 of 16 Pheno4D pairs at the default ``cross_lp``, which it lowers.
+   (``CrossSettings.fallback_rotation``, default ``"vertical"``) and its two candidates
+   (``"registered_vertical"``, ``"correspondence_vertical"``) join.
    Last, the registration's correspondences are tried again with the warps that minimise the 4D distance itself
    (:func:`fourd_warps`, one elastic matching per slot over all times at once; ``"correspondence_4d"``...), and,
    where still no registered candidate beats index order, the index order too (``"index_order_4d"``): where the
@@ -470,7 +470,7 @@ def register4d(reference: TreeSequence | AlignedSequence, moving: TreeSequence |
             options.append(score(f"{c.name}_4d", c.matches, leaves, c.rotation))
         return min(options, key=lambda x: x.distance)
 
-    # index order first: "before" is measured with it
+    # index order first: the distance before registration is its
     index_matches = index_order_matches(rep_b, rep_a)
     candidates = [score("index_order", index_matches, ident, eye)]
     searches = [rotation]

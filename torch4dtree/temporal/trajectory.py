@@ -1,4 +1,4 @@
-"""Trajectories in R^k (SPEC §5): a 4D tree as a curve of shape coordinates over normalised time.
+"""Trajectories in R^k (docs/method.md §5): a 4D tree as a curve of shape coordinates over normalised time.
 
 A trajectory is ``alpha (..., n_t, k)``: the shape coordinates (e.g. tree-PCA coefficients) of a 4D
 tree at ``n_t`` equally spaced normalised times ``linspace(0, 1, n_t)``. Its SRVF representation is
