@@ -42,12 +42,20 @@ DEFAULT_NT = 32  # common time samples of a trajectory
 ORDER_TOL = 0.02  # siblings closer than this share of their parent may match in any order
 # within-sequence registrations (frame j onto j + 1): lp 9 relative favours identities between consecutive frames
 WITHIN_LAMBDAS = (1.0, 1.0, 9.0)
-# cross-sequence registrations (two plants): node ranks, relative lp 12, children kept in order
+# cross-sequence registrations (two plants): node ranks, relative lp 12, children kept in order. Plants of a kind
+# carry their organs in one order up the stem (leaf k below leaf k + 1), and node k of one plant is node k of another;
+# lp is used by the registration only, the 4D distance keeps the space's metric
 CROSS_POSITIONS = "rank"
 CROSS_LP: float | None = 12.0
 CROSS_ORDER_TOL: float | None = ORDER_TOL
-FALLBACK_ROTATION: str | None = "vertical"  # tried where the asked rotation finds no better correspondence
-TIME_WEIGHT = 1.0  # the temporal registration's weight on the time coordinate
+# register4d's wider rotation search, run only where the asked rotation finds no correspondence better than the
+# index order (it costs about 10x rotation="none")
+FALLBACK_ROTATION: str | None = "vertical"
+# register4d's weight on a time coordinate appended to both trajectories in a second warp search: a penalty on warping
+# that scales with the trajectories and with how far they are from time warps of each other (two plants never trace
+# the same curve, and the plain energy's minimum fits their differences with steep jumps of the warp). The 4D mean and
+# PCA use the plain distance (weight 0, register_trajectories' default).
+TIME_WEIGHT = 1.0
 # the time-warp DP: slopes up to 4, then 16 Gauss-Newton steps off the lattice (docs/method.md §5)
 TEMPORAL_NEIGHBOURHOOD = 4
 TEMPORAL_REFINE = 16
