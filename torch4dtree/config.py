@@ -31,6 +31,7 @@ from .settings import (
     check_optional_number,
     check_share,
     setting_error,
+    settings_from_dict,
 )
 
 # the settings that decide how files become trees (the fields of io.LoadOptions that a config sets)
@@ -151,11 +152,7 @@ def load_config(path: str | Path) -> Config:
         raise setting_error(f"{path}: cannot read the config ({e})") from None
     if not isinstance(raw, dict):
         raise setting_error(f"{path}: a config is a JSON object of settings")
-    known = {f.name for f in dataclasses.fields(Config)}
-    unknown = sorted(set(raw) - known)
-    if unknown:
-        raise setting_error(f"{path}: unknown setting(s) {unknown}; known: {sorted(known)}")
     try:
-        return Config(**raw)
-    except (TypeError, ValueError) as e:  # TreeError is a ValueError; TypeError: a value of the wrong kind
+        return settings_from_dict(Config, raw, "the config")
+    except ValueError as e:  # TreeError is a ValueError
         raise setting_error(f"{path}: {e}") from None

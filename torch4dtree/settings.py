@@ -26,7 +26,7 @@ __all__ = [
     "FALLBACK_ROTATION", "HIERARCHIES", "ORDER_TOL", "POSITIONS", "ROTATIONS", "TEMPORAL_BACKENDS",
     "TEMPORAL_NEIGHBOURHOOD", "TEMPORAL_REFINE", "TIME_WEIGHT", "WITHIN_LAMBDAS", "CrossSettings", "ModelSettings",
     "RegistrationSettings", "TemporalSettings", "check_at_least", "check_choice", "check_lambdas",
-    "check_optional_number", "check_share", "setting_error",
+    "check_optional_number", "check_share", "setting_error", "settings_from_dict",
 ]
 
 # global rotation searched by a registration: data in one frame, about the up axis, or any (docs/method.md §3)
@@ -139,15 +139,28 @@ def _optional_int(name: str, value: object, low: int) -> int | None:
     return None if value is None else check_at_least(name, value, low)
 
 
-def _from_dict(cls: type, data: Mapping[str, Any], what: str) -> Any:
-    """``cls(**data)`` with unknown keys rejected by name."""
+def settings_from_dict(cls: type, data: Mapping[str, Any], what: str) -> Any:
+    """``cls(**data)`` for a settings dataclass, unknown keys rejected by name and a value of the wrong kind as a
+    TreeError (``what`` names the settings in the messages).
+
+    Example:
+        >>> settings_from_dict(CrossSettings, {"lp": 6}, "cross").lp
+        6.0
+        >>> settings_from_dict(CrossSettings, {"lpp": 6}, "cross")  # doctest: +ELLIPSIS
+        Traceback (most recent call last):
+        ...
+        torch4dtree.trees.structures.TreeError: unknown setting(s) ['lpp'] of cross; known: [...]
+    """
     if not isinstance(data, Mapping):
         raise setting_error(f"{what} must be a mapping of settings, got {type(data).__name__}")
     known = {f.name for f in dataclasses.fields(cls)}
     unknown = sorted(set(data) - known)
     if unknown:
-        raise setting_error(f"unknown {what} setting(s) {unknown}; known: {sorted(known)}")
-    return cls(**data)
+        raise setting_error(f"unknown setting(s) {unknown} of {what}; known: {sorted(known)}")
+    try:
+        return cls(**data)
+    except TypeError as e:  # a value of the wrong kind (the checks raise TreeError, a ValueError)
+        raise setting_error(f"{what}: {e}") from None
 
 
 def _plain(value: object) -> object:
@@ -159,8 +172,23 @@ def _plain(value: object) -> object:
     return value
 
 
+class _PlainDict:
+    """``to_dict`` / ``from_dict`` of a settings dataclass (``_what`` names it in errors)."""
+
+    _what = "settings"
+
+    def to_dict(self) -> dict[str, Any]:
+        """The settings as a plain dict (nested dicts for nested settings, lists for tuples)."""
+        return _plain(dataclasses.asdict(self))  # type: ignore[call-overload, return-value]
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> Any:
+        """Settings from a dict of some of the fields (the others default); unknown keys are errors."""
+        return settings_from_dict(cls, data, cls._what)
+
+
 @dataclass(frozen=True)
-class RegistrationSettings:
+class RegistrationSettings(_PlainDict):
     """How a tree registration searches (:func:`~torch4dtree.trees.register_to_reference`'s search settings).
 
     Every stage (within-sequence, cross-sequence, Karcher mean) searches with these; what it matches (weights,
@@ -224,18 +252,11 @@ class RegistrationSettings:
             prune=self.prune, lp_relative=lp_relative, positions=positions, order_tol=order_tol,
             symmetric=symmetric)
 
-    def to_dict(self) -> dict[str, Any]:
-        """The settings as a plain dict (lists for tuples)."""
-        return _plain(dataclasses.asdict(self))  # type: ignore[return-value]
-
-    @classmethod
-    def from_dict(cls, data: Mapping[str, Any]) -> RegistrationSettings:
-        """Settings from a dict of some of the fields (the others default); unknown keys are errors."""
-        return _from_dict(cls, data, "registration")
+    _what = "registration"
 
 
 @dataclass(frozen=True)
-class CrossSettings:
+class CrossSettings(_PlainDict):
     """How two plants' trees are registered onto each other (register4d's spatial stage, the population space).
 
     Attributes:
@@ -268,18 +289,11 @@ class CrossSettings:
         if self.fallback_rotation is not None:
             check_choice("fallback_rotation", self.fallback_rotation, ROTATIONS)
 
-    def to_dict(self) -> dict[str, Any]:
-        """The settings as a plain dict."""
-        return dataclasses.asdict(self)
-
-    @classmethod
-    def from_dict(cls, data: Mapping[str, Any]) -> CrossSettings:
-        """Settings from a dict of some of the fields (the others default); unknown keys are errors."""
-        return _from_dict(cls, data, "cross")
+    _what = "cross"
 
 
 @dataclass(frozen=True)
-class TemporalSettings:
+class TemporalSettings(_PlainDict):
     """The time-warp DP of two trajectories (:func:`~torch4dtree.temporal.register_trajectories`).
 
     Attributes:
@@ -312,14 +326,7 @@ class TemporalSettings:
                                      band=self.band, coarse=self.coarse, backend=self.backend,
                                      time_weight=time_weight)
 
-    def to_dict(self) -> dict[str, Any]:
-        """The settings as a plain dict."""
-        return dataclasses.asdict(self)
-
-    @classmethod
-    def from_dict(cls, data: Mapping[str, Any]) -> TemporalSettings:
-        """Settings from a dict of some of the fields (the others default); unknown keys are errors."""
-        return _from_dict(cls, data, "temporal")
+    _what = "temporal"
 
 
 # the flat keys of a model's settings as checkpoints wrote them before the cross settings were grouped
@@ -327,7 +334,7 @@ _FLAT_CROSS = {"positions": "positions", "cross_lp": "lp", "cross_order_tol": "o
 
 
 @dataclass(frozen=True)
-class ModelSettings:
+class ModelSettings(_PlainDict):
     """The generative model's settings (:class:`~torch4dtree.model.FourDTreeModel`, docs/method.md §5).
 
     Attributes:
@@ -383,10 +390,6 @@ class ModelSettings:
             if not isinstance(getattr(self, name), cls):
                 raise setting_error(f"{name} must be a {cls.__name__}, got {type(getattr(self, name)).__name__}")
 
-    def to_dict(self) -> dict[str, Any]:
-        """The settings as a plain dict (nested dicts for the stages, lists for tuples)."""
-        return _plain(dataclasses.asdict(self))  # type: ignore[return-value]
-
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> ModelSettings:
         """Settings from :meth:`to_dict`'s dict, or from the flat form older checkpoints saved (``positions``,
@@ -404,4 +407,4 @@ class ModelSettings:
             value = data.pop(name, None)
             if value is not None:
                 out[name] = stage.from_dict(value)
-        return _from_dict(cls, {**data, **out}, "model")
+        return settings_from_dict(cls, {**data, **out}, "model")

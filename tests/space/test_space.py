@@ -271,7 +271,7 @@ def test_karcher_errors():
         KarcherMean(lambdas=(1.0, 0.0, 1.0))
     with pytest.raises(TypeError, match="RegistrationSettings"):
         KarcherMean(registration={"max_iter": 3})
-    with pytest.raises(ValueError, match="unknown registration"):
+    with pytest.raises(ValueError, match="unknown setting"):
         RegistrationSettings.from_dict({"max_iter": 3})
     with pytest.raises(ValueError, match="rotation"):
         KarcherMean(rotation="spin")
