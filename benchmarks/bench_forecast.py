@@ -18,6 +18,7 @@ from typing import Any
 
 from torch4dtree.data import synthetic_dataset
 from torch4dtree.model import FourDTreeModel
+from torch4dtree.settings import ModelSettings
 from torch4dtree.temporal.registration import time_warp_trajectory
 
 
@@ -25,7 +26,7 @@ def run(kind: str, seed: int, plants: int = 12) -> dict[str, Any]:
     """Fit on the first 7 plants, forecast the others; their forecast / baseline errors (summed over plants)."""
     seqs = [p.sequence for p in synthetic_dataset(kind, plants=plants, seed=seed, n_frames=6, T=16)]
     t0 = time.perf_counter()
-    m = FourDTreeModel(n_t=16).fit(seqs[:7])
+    m = FourDTreeModel(ModelSettings(n_t=16)).fit(seqs[:7])
     fit_s = time.perf_counter() - t0
     errs = {"forecast": 0.0, "last": 0.0, "mean": 0.0}
     for h in seqs[7:]:

@@ -32,11 +32,12 @@ from torch4dtree.data import synthetic_dataset
 from torch4dtree.evaluate import load_eval_data
 from torch4dtree.evaluate.generative import PAPER_SECONDS, distance_matrix, novelty
 from torch4dtree.model import FourDTreeModel
+from torch4dtree.settings import ModelSettings
 
 
 def _fit(seqs: list, n_t: int) -> tuple[FourDTreeModel, dict[str, Any]]:
     t0 = time.perf_counter()
-    model = FourDTreeModel(n_t=n_t).fit(seqs)
+    model = FourDTreeModel(ModelSettings(n_t=n_t)).fit(seqs)
     seconds = time.perf_counter() - t0
     return model, {"plants": len(seqs), "frames": sum(len(s) for s in seqs), "seconds": seconds,
                    "stages": model.report_["seconds"], "modes": model.n_modes, "tree_components": model.population.k}

@@ -11,21 +11,7 @@ TESTS = Path(__file__).parent
 PACKAGE = TESTS.parent / "torch4dtree"
 
 # known imports of private names outside the curves / trees subpackages, to be made public by their owners
-ALLOWED_PRIVATE_IMPORTS = {
-    ("torch4dtree.cli.render", "torch4dtree.render.frames._compose"),
-    ("torch4dtree.cli.render", "torch4dtree.render.frames._prepare"),
-    ("torch4dtree.cli.render", "torch4dtree.render.frames._render_frames"),
-    ("torch4dtree.cli.render", "torch4dtree.render.frames._tree_geometry"),
-    ("torch4dtree.evaluate.figures", "torch4dtree.temporal.spatiotemporal._trajectories"),
-    ("torch4dtree.evaluate.figures", "torch4dtree.render.frames._font"),
-    ("torch4dtree.evaluate.figures", "torch4dtree.render.frames._line_height"),
-    ("torch4dtree.evaluate.figures", "torch4dtree.render.frames._text_width"),
-    ("torch4dtree.evaluate.truth", "torch4dtree.bench.temporal._label_features"),
-    ("torch4dtree.evaluate.truth", "torch4dtree.bench.temporal._pca_trajectories"),
-    ("torch4dtree.model.trajectory", "torch4dtree.temporal.within._inverse_at"),
-    ("torch4dtree.render.frames", "torch4dtree.render.options._options"),
-    ("torch4dtree.temporal.spatiotemporal", "torch4dtree.temporal.within._inverse_at"),
-}
+ALLOWED_PRIVATE_IMPORTS: set[tuple[str, str]] = set()
 
 
 def test_no_importorskip_of_the_package() -> None:

@@ -12,33 +12,50 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
-ROTATIONS = ("none", "vertical", "so3")
+from .settings import (
+    CROSS_LP,
+    CROSS_ORDER_TOL,
+    CROSS_POSITIONS,
+    DEFAULT_NT,
+    DEFAULT_POSITIONS,
+    DEFAULT_T,
+    HIERARCHIES,
+    POSITIONS,
+    ROTATIONS,
+    CrossSettings,
+    ModelSettings,
+    RegistrationSettings,
+    check_at_least,
+    check_choice,
+    check_lambdas,
+    check_optional_number,
+    check_share,
+    setting_error,
+    settings_from_dict,
+)
+
 # the settings that decide how files become trees (the fields of io.LoadOptions that a config sets)
 LOAD_SETTINGS = ("T", "max_layers", "min_branch_length", "repair", "hierarchy", "joint_hierarchy")
-# = trees.skeleton.HIERARCHIES (literal for the same reason as DEFAULT_T; tested)
-HIERARCHIES = ("straightest", "heaviest", "longest")
-# = trees.registration.POSITIONS / DEFAULT_POSITIONS and temporal.spatiotemporal.CROSS_POSITIONS / CROSS_LP /
-# CROSS_ORDER_TOL (literal, tested)
-POSITIONS = ("warped", "arclength", "rank")
-DEFAULT_POSITIONS = "rank"
-CROSS_POSITIONS = "rank"
-CROSS_LP: float | None = 12.0
-CROSS_ORDER_TOL: float | None = 0.02
-# = trees.structures.DEFAULT_T (kept literal so that importing this module never imports torch; tested)
-DEFAULT_T = 64
-
-
-def _error(message: str) -> ValueError:
-    """A :class:`~torch4dtree.trees.structures.TreeError` (imported only when there is an error to raise)."""
-    from .trees.structures import TreeError
-
-    return TreeError(message)
-
 
 
 @dataclass
 class Config:
-    """Loading and registration settings (SPEC §2, §3)."""
+    """Loading, registration and model settings (docs/method.md §2, §3, §5), one JSON key per field.
+
+    :meth:`registration_settings`, :meth:`cross_settings` and :meth:`model_settings` give the typed settings the
+    functions take.
+
+    Example:
+        >>> cfg = Config(rotation="vertical", cross_lp=None, n_t=8)
+        >>> cfg.cross_settings().lp is None, cfg.model_settings().n_t
+        (True, 8)
+        >>> Config(**cfg.to_dict()) == cfg
+        True
+        >>> Config(cross_positions="fraction")  # doctest: +ELLIPSIS
+        Traceback (most recent call last):
+        ...
+        torch4dtree.trees.structures.TreeError: cross_positions must be one of (...), got 'fraction'
+    """
 
     T: int = DEFAULT_T
     max_layers: int | None = None
@@ -54,12 +71,12 @@ class Config:
     positions: str = DEFAULT_POSITIONS
     # cross-sequence registrations (register4d, the model's population): children's positions, relative lp
     # (null: lambdas[2]) and order tolerance (null: children matched in any order); within a sequence,
-    # register_sequence keeps its own (temporal.spatiotemporal.CROSS_*)
+    # register_sequence keeps its own (settings.CrossSettings)
     cross_positions: str = CROSS_POSITIONS
     cross_lp: float | None = CROSS_LP
     cross_order_tol: float | None = CROSS_ORDER_TOL
-    # the generative model (SPEC §5; torch4dtree.model.FourDTreeModel)
-    n_t: int = 32  # common time samples of the trajectories
+    # the generative model (docs/method.md §5; torch4dtree.model.FourDTreeModel)
+    n_t: int = DEFAULT_NT  # common time samples of the trajectories
     tree_components: int | None = None  # tree-PCA components (None: the share tree_variance)
     tree_variance: float = 0.99
     modes: int | None = None  # trajectory-PCA modes (None: the share mode_variance)
@@ -71,49 +88,40 @@ class Config:
     notes: str = field(default="", compare=False)
 
     def __post_init__(self) -> None:
-        if self.T < 2:
-            raise _error(f"T must be at least 2, got {self.T}")
-        if self.hierarchy not in HIERARCHIES:
-            raise _error(f"hierarchy must be one of {HIERARCHIES}, got {self.hierarchy!r}")
-        if self.rotation not in ROTATIONS:
-            raise _error(f"rotation must be one of {ROTATIONS}, got {self.rotation!r}")
-        self.lambdas = tuple(float(x) for x in self.lambdas)  # type: ignore[assignment]
-        if len(self.lambdas) != 3 or min(self.lambdas) < 0 or min(self.lambdas[:2]) <= 0:
-            raise _error(f"lambdas must be (lm > 0, ls > 0, lp >= 0), got {self.lambdas}")
-        if self.positions not in POSITIONS:
-            raise _error(f"positions must be one of {POSITIONS}, got {self.positions!r}")
-        if self.cross_positions not in POSITIONS:
-            raise _error(f"cross_positions must be one of {POSITIONS}, got {self.cross_positions!r}")
-        for name in ("cross_lp", "cross_order_tol"):
-            value = getattr(self, name)
-            if value is not None:
-                if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value < float("inf"):
-                    raise _error(f"{name} must be null or a finite number >= 0, got {value!r}")
-                setattr(self, name, float(value))
-        if self.neighbourhood < 1:
-            raise _error(f"neighbourhood must be at least 1, got {self.neighbourhood}")
-        self._check_model_settings()
-
-    def _check_model_settings(self) -> None:
-        for name in ("n_t", "medoid_candidates", "mean_iters", "render_size"):
-            if getattr(self, name) < (2 if name == "n_t" else 1):
-                raise _error(f"{name} must be at least {2 if name == 'n_t' else 1}, got {getattr(self, name)}")
+        check_at_least("T", self.T, 2)
+        check_choice("hierarchy", self.hierarchy, HIERARCHIES)
+        check_choice("rotation", self.rotation, ROTATIONS)
+        self.lambdas = check_lambdas(self.lambdas)
+        check_choice("positions", self.positions, POSITIONS)
+        check_choice("cross_positions", self.cross_positions, POSITIONS)
+        self.cross_lp = check_optional_number("cross_lp", self.cross_lp)
+        self.cross_order_tol = check_optional_number("cross_order_tol", self.cross_order_tol)
+        check_at_least("neighbourhood", self.neighbourhood, 1)
+        check_at_least("n_t", self.n_t, 2)
+        for name in ("medoid_candidates", "mean_iters", "render_size"):
+            check_at_least(name, getattr(self, name), 1)
         for name in ("tree_components", "modes"):
-            if getattr(self, name) is not None and getattr(self, name) < 1:
-                raise _error(f"{name} must be null or at least 1, got {getattr(self, name)}")
+            if getattr(self, name) is not None:
+                check_at_least(name, getattr(self, name), 1)
         for name in ("tree_variance", "mode_variance"):
-            if not 0 < getattr(self, name) <= 1:
-                raise _error(f"{name} must be in (0, 1], got {getattr(self, name)}")
-        if not self.c > 0:
-            raise _error(f"c must be positive, got {self.c}")
+            check_share(name, getattr(self, name))
+        self.model_settings()  # the rest (c...) as the model checks it
 
-    def model_args(self) -> dict:
-        """The :class:`~torch4dtree.model.FourDTreeModel` constructor arguments these settings give."""
-        return {"lambdas": list(self.lambdas), "rotation": self.rotation, "n_t": self.n_t,
-                "tree_components": self.tree_components, "tree_variance": self.tree_variance,
-                "medoid_candidates": self.medoid_candidates, "registration": {"neighbourhood": self.neighbourhood},
-                "modes": self.modes, "mode_variance": self.mode_variance, "c": self.c, "mean_iters": self.mean_iters,
-                **self.cross_args()}
+    def registration_settings(self) -> RegistrationSettings:
+        """How the tree registrations search (the DP's ``neighbourhood``; the rest default)."""
+        return RegistrationSettings(neighbourhood=self.neighbourhood)
+
+    def cross_settings(self) -> CrossSettings:
+        """The cross-sequence registration settings (:func:`~torch4dtree.temporal.register4d`'s ``cross``)."""
+        return CrossSettings(positions=self.cross_positions, lp=self.cross_lp, order_tol=self.cross_order_tol)
+
+    def model_settings(self) -> ModelSettings:
+        """The :class:`~torch4dtree.model.FourDTreeModel` settings these give."""
+        return ModelSettings(lambdas=self.lambdas, rotation=self.rotation, n_t=self.n_t,
+                             tree_components=self.tree_components, tree_variance=self.tree_variance,
+                             modes=self.modes, mode_variance=self.mode_variance, c=self.c,
+                             medoid_candidates=self.medoid_candidates, mean_iters=self.mean_iters,
+                             registration=self.registration_settings(), cross=self.cross_settings())
 
     def load_options(self):  # noqa: ANN201 - io.LoadOptions (io imports structures; keep this module light)
         """The :class:`~torch4dtree.io.LoadOptions` with every setting the two share taken from here."""
@@ -121,28 +129,30 @@ class Config:
 
         return LoadOptions(**{name: getattr(self, name) for name in LOAD_SETTINGS})
 
-    def cross_args(self) -> dict:
-        """The cross-sequence registration settings as :func:`~torch4dtree.temporal.register4d` takes them."""
-        return {"positions": self.cross_positions, "cross_lp": self.cross_lp, "cross_order_tol": self.cross_order_tol}
-
     def to_dict(self) -> dict:
-        return dataclasses.asdict(self)
+        """The settings as a JSON-ready dict (the keys a config file uses)."""
+        out = dataclasses.asdict(self)
+        out["lambdas"] = list(self.lambdas)
+        return out
 
 
 def load_config(path: str | Path) -> Config:
-    """Read a JSON config; keys not listed in :class:`Config` are rejected with their name."""
+    """Read a JSON config; keys not listed in :class:`Config` are rejected with their name.
+
+    Example:
+        >>> from pathlib import Path
+        >>> import torch4dtree
+        >>> load_config(Path(torch4dtree.__file__).parents[1] / "configs" / "tomato.json").rotation
+        'none'
+    """
     path = Path(path)
     try:
         raw = json.loads(path.read_text())
     except (OSError, ValueError) as e:
-        raise _error(f"{path}: cannot read the config ({e})") from None
+        raise setting_error(f"{path}: cannot read the config ({e})") from None
     if not isinstance(raw, dict):
-        raise _error(f"{path}: a config is a JSON object of settings")
-    known = {f.name for f in dataclasses.fields(Config)}
-    unknown = sorted(set(raw) - known)
-    if unknown:
-        raise _error(f"{path}: unknown setting(s) {unknown}; known: {sorted(known)}")
+        raise setting_error(f"{path}: a config is a JSON object of settings")
     try:
-        return Config(**raw)
-    except (TypeError, ValueError) as e:  # TreeError is a ValueError; TypeError: a value of the wrong kind
-        raise _error(f"{path}: {e}") from None
+        return settings_from_dict(Config, raw, "the config")
+    except ValueError as e:  # TreeError is a ValueError
+        raise setting_error(f"{path}: {e}") from None

@@ -10,21 +10,37 @@ import json
 import pytest
 import torch
 
-from torch4dtree import config as config_module
+from torch4dtree import settings as settings_module
 from torch4dtree.config import Config, load_config
 from torch4dtree.data import synthetic_dataset
 from torch4dtree.evaluate import truth
 from torch4dtree.model import FourDTreeModel
+from torch4dtree.settings import CrossSettings, ModelSettings, RegistrationSettings
 from torch4dtree.temporal import population as population_module
 from torch4dtree.temporal import spatiotemporal as spatiotemporal_module
 from torch4dtree.temporal.population import Population
 from torch4dtree.temporal.spatiotemporal import register4d, representative_tree
 from torch4dtree.trees import registration as registration_module
 
+ARC = CrossSettings(positions="arclength", lp=60.0, order_tol=0.1)
+
 
 @pytest.fixture(scope="module")
 def plants() -> list:
     return [p.sequence for p in synthetic_dataset("bean", plants=3, seed=0, n_frames=3, T=12)]
+
+
+def _spy_registrations(monkeypatch: pytest.MonkeyPatch) -> list[dict]:
+    """Record the keyword arguments of every tree registration (:meth:`RegistrationSettings.register`)."""
+    calls: list[dict] = []
+    original = RegistrationSettings.register
+
+    def wrapped(self: RegistrationSettings, *args: object, **kwargs: object) -> object:
+        calls.append(kwargs)
+        return original(self, *args, **kwargs)
+
+    monkeypatch.setattr(RegistrationSettings, "register", wrapped)
+    return calls
 
 
 def _spy(monkeypatch: pytest.MonkeyPatch, module: object, name: str) -> list[dict]:
@@ -41,74 +57,72 @@ def _spy(monkeypatch: pytest.MonkeyPatch, module: object, name: str) -> list[dic
 
 
 def test_population_cross_registrations_use_the_setting(plants, monkeypatch):
-    cross = _spy(monkeypatch, population_module, "register_to_reference")
+    search = RegistrationSettings(neighbourhood=3)
+    cross = _spy_registrations(monkeypatch)
     within = _spy(monkeypatch, population_module, "register_sequence")
-    pop = Population(n_t=4, medoid_candidates=2, positions="arclength", cross_lp=60.0, cross_order_tol=0.1,
-                     registration={"order_tol": 0.05}).fit(plants)
+    pop = Population(n_t=4, medoid_candidates=2, registration=search, cross=ARC).fit(plants)
+    # within a sequence: register_sequence's own positions and order, the shared search settings
+    assert within and all(set(kw) == {"progress", "registration"} and kw["registration"] is search for kw in within)
+    cross = [kw for kw in cross if kw["positions"] != "rank"]  # the within-sequence ones use node ranks
     assert cross and all(kw["positions"] == "arclength" and kw["order_tol"] == 0.1 for kw in cross)
-    # within a sequence: the registration dict's own order_tol, not the cross one
-    assert within and all("positions" not in kw and "cross_lp" not in kw and kw["order_tol"] == 0.05 for kw in within)
     rep = pop.report_["cross_registration"]
     assert rep["positions"] == "arclength" and rep["order_tol"] == 0.1
     # lp 60 relative for the registrations, the space keeps lp 1 relative: the same length scale (median)
     assert rep["lambdas"][2] == pytest.approx(60.0 * pop.lambdas_[2])
     # transform registers a new plant with the same settings
-    cross.clear()
+    calls = _spy_registrations(monkeypatch)
     pop.transform(plants[0])
-    assert len(cross) == 1 and cross[0]["positions"] == "arclength" and cross[0]["order_tol"] == 0.1
+    calls = [kw for kw in calls if kw["positions"] != "rank"]
+    assert len(calls) == 1 and calls[0]["positions"] == "arclength" and calls[0]["order_tol"] == 0.1
 
 
 def test_population_fit_differs_with_arclength_positions(plants):
     default = Population(n_t=4, medoid_candidates=1).fit(plants)
-    arc = Population(n_t=4, medoid_candidates=1, positions="arclength").fit(plants)
-    assert default.report_["cross_registration"]["positions"] == spatiotemporal_module.CROSS_POSITIONS
-    assert default.report_["cross_registration"]["order_tol"] == spatiotemporal_module.CROSS_ORDER_TOL
+    arc = Population(n_t=4, medoid_candidates=1, cross=CrossSettings(positions="arclength")).fit(plants)
+    assert default.report_["cross_registration"]["positions"] == settings_module.CROSS_POSITIONS
+    assert default.report_["cross_registration"]["order_tol"] == settings_module.CROSS_ORDER_TOL
     # the same weights, other position features: the registered distances differ
     assert default.report_["cross_registration"]["lambdas"] == arc.report_["cross_registration"]["lambdas"]
     assert default.report_["cross_distance_after"] != pytest.approx(arc.report_["cross_distance_after"], rel=1e-6)
 
 
 def test_register4d_cross_registration_uses_the_setting(plants, monkeypatch):
-    calls = _spy(monkeypatch, spatiotemporal_module, "register_trees")
     within = _spy(monkeypatch, spatiotemporal_module, "register_sequence")
-    r = register4d(plants[0], plants[1], n_t=4, positions="arclength", cross_lp=60.0, cross_order_tol=None,
-                   order_tol=0.05)
+    calls = _spy_registrations(monkeypatch)
+    cross = CrossSettings(positions="arclength", lp=60.0, order_tol=None)
+    r = register4d(plants[0], plants[1], n_t=4, cross=cross)
+    calls = [kw for kw in calls if kw["positions"] != "rank"]  # the within-sequence ones use node ranks
     assert calls and all(kw["positions"] == "arclength" and kw["order_tol"] is None for kw in calls)
-    assert within and all("positions" not in kw and kw["order_tol"] == 0.05 for kw in within)
+    assert within and all(set(kw) == {"progress", "registration"} for kw in within)
     assert r.cross_registration["positions"] == "arclength" and r.cross_registration["order_tol"] is None
     default = register4d(plants[0], plants[1], n_t=4)
-    assert default.cross_registration["positions"] == spatiotemporal_module.CROSS_POSITIONS
+    assert default.cross_registration["positions"] == settings_module.CROSS_POSITIONS
     # lp relative to the same length: the effective lp scales with cross_lp (None: the space's lp = 1)
     assert r.cross_registration["lambdas"][2] == pytest.approx(
-        60.0 / (spatiotemporal_module.CROSS_LP or 1.0) * default.cross_registration["lambdas"][2])
-    space = register4d(plants[0], plants[1], n_t=4, cross_lp=None)
+        60.0 / (settings_module.CROSS_LP or 1.0) * default.cross_registration["lambdas"][2])
+    space = register4d(plants[0], plants[1], n_t=4, cross=CrossSettings(lp=None))
     assert r.cross_registration["lambdas"][2] == pytest.approx(60.0 * space.cross_registration["lambdas"][2])
     with pytest.raises(ValueError, match="positions"):
-        register4d(plants[0], plants[1], n_t=4, positions="fraction")
+        CrossSettings(positions="fraction")
     with pytest.raises(ValueError, match="cross_lp"):
-        Population(cross_lp=-1.0)
+        CrossSettings(lp=-1.0)
     for bad in (-0.1, float("nan"), True):
         with pytest.raises(ValueError, match="cross_order_tol"):
-            register4d(plants[0], plants[1], n_t=4, cross_order_tol=bad)
+            CrossSettings(order_tol=bad)
 
 
 def test_config_round_trip_and_literals(tmp_path):
-    # the config module keeps literals (no torch import): they must equal the library's
-    assert config_module.POSITIONS == registration_module.POSITIONS
-    assert config_module.DEFAULT_POSITIONS == registration_module.DEFAULT_POSITIONS == Config().positions
-    assert config_module.CROSS_POSITIONS == spatiotemporal_module.CROSS_POSITIONS
-    assert config_module.CROSS_LP == spatiotemporal_module.CROSS_LP
-    assert config_module.CROSS_ORDER_TOL == spatiotemporal_module.CROSS_ORDER_TOL
+    assert settings_module.POSITIONS == registration_module.POSITIONS
+    assert settings_module.DEFAULT_POSITIONS == registration_module.DEFAULT_POSITIONS == Config().positions
     cfg = Config(cross_positions="arclength", cross_lp=60, cross_order_tol=None)
     path = tmp_path / "c.json"
     path.write_text(json.dumps(cfg.to_dict()))
     back = load_config(path)
     assert back == cfg and back.cross_lp == 60.0
-    args = back.model_args()
-    assert args["positions"] == "arclength" and args["cross_lp"] == 60.0 and args["cross_order_tol"] is None
-    model = FourDTreeModel(**args)
-    assert model.population.positions == "arclength" and model.population.cross_lp == 60.0
-    assert model.population.cross_order_tol is None
+    settings = back.model_settings()
+    assert settings.cross == CrossSettings(positions="arclength", lp=60.0, order_tol=None)
+    model = FourDTreeModel(settings)
+    assert model.population.cross == settings.cross
     for bad in ({"cross_positions": "fraction"}, {"cross_lp": -1}, {"cross_lp": "60"}, {"cross_lp": True},
                 {"cross_order_tol": -0.01}, {"cross_order_tol": "0.02"}):
         path.write_text(json.dumps(bad))
@@ -119,36 +133,30 @@ def test_config_round_trip_and_literals(tmp_path):
 def test_checkpoint_keeps_the_setting_and_old_ones_load_as_warped(plants, tmp_path):
     from torch4dtree import load
 
-    model = FourDTreeModel(n_t=4, medoid_candidates=1, positions="arclength", cross_lp=60.0,
-                           cross_order_tol=0.1).fit(plants)
+    model = FourDTreeModel(ModelSettings(n_t=4, medoid_candidates=1, cross=ARC)).fit(plants)
     path = tmp_path / "m.pt"
     model.save(str(path))
     loaded = load(path)
     pop, pop0 = loaded.population, model.population
-    assert (pop.positions, pop.cross_lp, pop.cross_lambdas_, pop.cross_order_tol) == (
-        pop0.positions, pop0.cross_lp, pop0.cross_lambdas_, 0.1)
-    assert loaded.args["positions"] == "arclength" and loaded.args["cross_lp"] == 60.0
-    assert loaded.args["cross_order_tol"] == 0.1
+    assert (pop.cross, pop.cross_lambdas_) == (pop0.cross, pop0.cross_lambdas_)
+    assert loaded.settings == model.settings and loaded.settings.cross == ARC
     torch.testing.assert_close(loaded.population.transform(plants[2]).trajectory,
                                model.population.transform(plants[2]).trajectory)
-    # a checkpoint written before the setting existed: no args, no extra-state keys -> warped, the space's lp
+    # a checkpoint without the cross settings: no args, no extra-state keys -> warped, the space's lp
     raw = torch.load(path, weights_only=True)
-    for key in ("positions", "cross_lp", "cross_order_tol"):
-        raw["args"].pop(key)
+    raw["args"].pop("cross")
     extra = raw["state_dict"]["population._extra_state"]
     for key in ("positions", "cross_lp", "cross_lambdas_", "cross_order_tol"):
         extra.pop(key)
     torch.save(raw, path)
     old = load(path)
-    assert old.population.positions == "warped" and old.population.cross_lp is None
-    assert old.population.cross_order_tol is None and old.args["cross_order_tol"] is None
+    warped = CrossSettings(positions="warped", lp=None, order_tol=None)
+    assert old.population.cross == warped and old.settings.cross == warped
     assert old.population.cross_lambdas_ == old.population.lambdas_
-    assert old.args["positions"] == "warped"
-    # whatever the constructor's default: the state fitted before the setting existed wins
-    rebuilt = FourDTreeModel(**{**raw["args"], "positions": "arclength", "cross_lp": 60.0})
+    # whatever the constructor's settings: the state fitted without the cross settings wins
+    rebuilt = FourDTreeModel(ModelSettings.from_dict({**raw["args"], "cross": ARC.to_dict()}))
     rebuilt.load_state_dict(raw["state_dict"])
-    assert rebuilt.population.positions == "warped" and rebuilt.population.cross_lp is None
-    assert rebuilt.args["positions"] == "warped" and rebuilt.args["cross_lp"] is None
+    assert rebuilt.population.cross == warped and rebuilt.settings.cross == warped
 
 
 def test_default_cross_registration_keeps_organs_and_their_order():
@@ -173,8 +181,8 @@ def test_default_cross_registration_keeps_organs_and_their_order():
                       if int(rep_a.parent[a]) == 0 and int(rep_b.parent[b]) == 0)
         assert len(kids) >= 4
         assert all(y2 >= y1 - 0.02 for (_, y1), (_, y2) in zip(kids, kids[1:])), kids
-        old = register4d(aligned[i], aligned[j], rotation="vertical", positions="warped", cross_lp=10.0,
-                         cross_order_tol=None)
+        old = register4d(aligned[i], aligned[j], rotation="vertical",
+                         cross=CrossSettings(positions="warped", lp=10.0, order_tol=None))
         hits = [organs[j][b] == organs[i][a] for b, a in old.matches if organs[i][a] != 99]
         old_precision.append(sum(hits) / len(hits))
     assert min(old_precision) < 0.5, old_precision

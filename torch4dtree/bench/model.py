@@ -34,16 +34,17 @@ def benchmark_model(plants: int = 5, frames: int = 8, T: int = 32, n_t: int = 32
     from ..data import synthetic_dataset
     from ..model import FourDTreeModel
     from ..model.trajectory import TrajectoryMean
+    from ..settings import ModelSettings
 
     seqs = [p.sequence for p in synthetic_dataset(kind, plants, seed, n_frames=frames, T=T, dtype=torch.float64)]
     t0 = time.perf_counter()
-    model = FourDTreeModel(n_t=n_t).fit(seqs)
+    model = FourDTreeModel(ModelSettings(n_t=n_t)).fit(seqs)
     fit_s = time.perf_counter() - t0
     alpha = model.population.trajectories
     mean_s = []
     for _ in range(repeats):  # a fresh mean each time, with the model's settings
         t0 = time.perf_counter()
-        TrajectoryMean(model.args["mean_iters"], registration=model.args["temporal"]).fit(alpha)
+        TrajectoryMean(model.settings.mean_iters, registration=model.settings.temporal).fit(alpha)
         mean_s.append(time.perf_counter() - t0)
     g = torch.Generator().manual_seed(seed)
     model.trajectories(model.sample_coefficients(2, g))  # first call: lazy set-up stays out of the timing

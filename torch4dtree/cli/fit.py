@@ -72,7 +72,7 @@ def run(args: argparse.Namespace) -> int:
     seconds["read"] = time.perf_counter() - t0
     log.info("read %d 4D trees (%d frames) in %.2f s", len(seqs), sum(len(s) for s in seqs), seconds["read"])
     t0 = time.perf_counter()
-    model = FourDTreeModel(**cfg.model_args()).fit(seqs, progress=not args.quiet)
+    model = FourDTreeModel(cfg.model_settings()).fit(seqs, progress=not args.quiet)
     seconds["fit"] = time.perf_counter() - t0
     log.info("fitted in %.2f s: %d slots, %d tree components, %d modes", seconds["fit"],
              model.report_["population"]["slots"], model.population.k, model.n_modes)

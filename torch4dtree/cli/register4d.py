@@ -60,8 +60,8 @@ def run(args: argparse.Namespace) -> int:
     opts = dataclasses.replace(cfg.load_options(), dtype=torch.float64)
     a, b = _read(args.reference, opts), _read(args.moving, opts)
     t0 = time.perf_counter()
-    res = register4d(a, b, lambdas=cfg.lambdas, rotation=cfg.rotation, n_t=args.n_t, neighbourhood=cfg.neighbourhood,
-                     **cfg.cross_args())
+    res = register4d(a, b, lambdas=cfg.lambdas, rotation=cfg.rotation, n_t=args.n_t,
+                     registration=cfg.registration_settings(), cross=cfg.cross_settings())
     seconds = time.perf_counter() - t0
     written: list[str] = []
     path = res.geodesic(args.steps) if (args.out or image) else []

@@ -21,7 +21,7 @@ import torch
 
 from ..io import LoadOptions, read_sequence, sequence_folders
 from ..io.dataset import DatasetError
-from ..settings import CROSS_LP, CROSS_ORDER_TOL, CROSS_POSITIONS
+from ..settings import CROSS_LP, CROSS_ORDER_TOL, CROSS_POSITIONS, CrossSettings, ModelSettings
 from ..trees.structures import TreeSequence
 
 __all__ = ["EvalData", "EvalSettings", "Plant4D", "load_eval_data", "primary_source", "sources_of"]
@@ -57,14 +57,19 @@ class EvalSettings:
     cross_lp: float | None = CROSS_LP
     cross_order_tol: float | None = CROSS_ORDER_TOL
 
-    def cross_args(self) -> dict:
-        """The cross-sequence registration settings as :func:`~torch4dtree.temporal.register4d` takes them.
+    def cross_settings(self) -> CrossSettings:
+        """The cross-sequence registration settings (:func:`~torch4dtree.temporal.register4d`'s ``cross``).
 
         Example:
-            >>> EvalSettings(cross_lp=None).cross_args()
-            {'positions': 'rank', 'cross_lp': None, 'cross_order_tol': 0.02}
+            >>> EvalSettings(cross_lp=None).cross_settings().lp is None
+            True
         """
-        return {"positions": self.cross_positions, "cross_lp": self.cross_lp, "cross_order_tol": self.cross_order_tol}
+        return CrossSettings(positions=self.cross_positions, lp=self.cross_lp, order_tol=self.cross_order_tol)
+
+    def model_settings(self, n_t: int) -> ModelSettings:
+        """The generative model's settings of the experiments (one medoid candidate with :attr:`quick`)."""
+        return ModelSettings(lambdas=self.lambdas, rotation=self.rotation, n_t=n_t, cross=self.cross_settings(),
+                             medoid_candidates=1 if self.quick else 3)
 
     def generator(self, offset: int = 0) -> torch.Generator:
         """A fresh generator seeded from :attr:`seed` (``offset`` keeps experiments' streams apart)."""

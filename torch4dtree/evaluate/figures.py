@@ -149,7 +149,7 @@ def index_order_registration(res: SpatiotemporalRegistration) -> SpatiotemporalR
     """``res`` as it was before registration: the index-order correspondence of the two 4D trees (identity warps
     and rotation) and the identity time warp, so that ``.geodesic()`` is the paper's Fig. 8 (its length is
     ``res.distance_before``)."""
-    from ..temporal.spatiotemporal import _trajectories, combine_sequences, representative_tree
+    from ..temporal.spatiotemporal import combine_sequences, layout_trajectories, representative_tree
     from ..trees.registration import index_order_matches
 
     n_t = len(res.times)
@@ -162,7 +162,7 @@ def index_order_registration(res: SpatiotemporalRegistration) -> SpatiotemporalR
     ident = torch.linspace(0, 1, rep_b.T, dtype=torch.float64).expand(rep_b.points.shape[0], -1)
     layout = combine_sequences(A, B, matches, ident, torch.eye(rep_b.dim, dtype=torch.float64), res.layout.lambdas)
     # as register4d builds its "before" state (all components: nothing of the shapes is lost)
-    pca, alpha_a, alpha_b = _trajectories(layout, len(A), A.times, B.times, n_t, None)
+    pca, alpha_a, alpha_b = layout_trajectories(layout, len(A), A.times, B.times, n_t, None)
     return res._replace(pca=pca, layout=layout, alpha_ref=alpha_a, alpha_mov=alpha_b, alpha_mov_registered=alpha_b,
                         alpha_mov_fine=None, matches=matches, warp=ident_t)
 
@@ -176,7 +176,7 @@ def _geodesic4d_figure(data: EvalData, settings: EvalSettings, lay: FigureLayout
         return None
     ref, mov = _plants_of(data, kind)[:2]
     res = register4d(ref.sequence, mov.sequence, lambdas=settings.lambdas, rotation=settings.rotation, n_t=lay.n_t,
-                     **settings.cross_args())
+                     cross=settings.cross_settings())
     before = index_order_registration(res)
     rows, labels = [], []
     for name, r in (("before", before), ("after", res)):
@@ -199,8 +199,7 @@ def _model_figures(data: EvalData, settings: EvalSettings, lay: FigureLayout, ou
     if kind is None:
         return []
     plants = _plants_of(data, kind)[:lay.max_plants]
-    model = FourDTreeModel(lambdas=settings.lambdas, rotation=settings.rotation, n_t=lay.n_t, **settings.cross_args(),
-                           medoid_candidates=1 if settings.quick else 3)
+    model = FourDTreeModel(settings.model_settings(lay.n_t))
     model.fit([p.sequence for p in plants])
     note = f"fitted on {len(plants)} {kind} plants ({data.source}), {model.n_modes} modes, n_t = {lay.n_t}"
     return write_model_figures(model, out, lay.cell, settings.seed, note=note)

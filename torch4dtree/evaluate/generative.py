@@ -228,8 +228,7 @@ def _within_draw(pool: Tensor, idx: Tensor) -> Tensor:
 
 def _fit(train: list[Plant4D], settings: EvalSettings) -> tuple[FourDTreeModel, float]:
     n_t = min(settings.n_t, QUICK_N_T) if settings.quick else settings.n_t
-    model = FourDTreeModel(lambdas=settings.lambdas, rotation=settings.rotation, n_t=n_t, **settings.cross_args(),
-                           medoid_candidates=1 if settings.quick else 3)
+    model = FourDTreeModel(settings.model_settings(n_t))
     t0 = time.perf_counter()
     model.fit([p.sequence for p in train])
     return model, time.perf_counter() - t0

@@ -61,6 +61,6 @@ def registered_pairs(data: EvalData, kind: str, settings: EvalSettings, progress
                settings.cross_lp, settings.cross_order_tol)
         if key not in cache:
             cache[key] = register4d(aligned_sequence(data, ref), aligned_sequence(data, mov), settings.lambdas,
-                                    settings.rotation, settings.n_t, **settings.cross_args())
+                                    settings.rotation, settings.n_t, cross=settings.cross_settings())
         out.append((ref, mov, cache[key]))
     return out

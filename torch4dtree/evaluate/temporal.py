@@ -229,7 +229,7 @@ def _warped_missing(plant: Plant4D, aligned: AlignedSequence, warp: PlantWarp, s
     copy = TreeSequence(frames, (times[0] + s.to(times.dtype) * span), f"{plant.name} (warped, missing days)")
     t0 = time.perf_counter()
     mov = register_sequence(copy)  # the library's defaults, as .pairs.aligned_sequence registers the plants
-    r = register4d(aligned, mov, settings.lambdas, settings.rotation, settings.n_t, **settings.cross_args())
+    r = register4d(aligned, mov, settings.lambdas, settings.rotation, settings.n_t, cross=settings.cross_settings())
     seconds = time.perf_counter() - t0
     truth = true_warp(u, s, settings.n_t)
     return {"unregistered": r.distance_before, "before": r.distance_after_spatial, "after": r.distance_after_temporal,

@@ -171,12 +171,9 @@ def _within_rows(plants: Sequence[Plant4D], lambdas: Sequence[float], progress: 
 def default_within_lambdas(lambdas: Sequence[float]) -> tuple[float, float, float]:
     """``lambdas`` with the ``lp`` of :func:`~torch4dtree.temporal.register_sequence`'s default (tuned for
     identities between consecutive frames; the evaluation's ``lambdas`` may use another)."""
-    import inspect
+    from ..settings import WITHIN_LAMBDAS
 
-    from ..temporal.within import register_sequence
-
-    lp = float(inspect.signature(register_sequence).parameters["lambdas"].default[2])
-    return float(lambdas[0]), float(lambdas[1]), lp
+    return float(lambdas[0]), float(lambdas[1]), WITHIN_LAMBDAS[2]
 
 
 def _cross_lambdas(settings: EvalSettings) -> tuple[float, float, float]:
@@ -239,7 +236,7 @@ def _growth_warp(a: Plant4D, b: Plant4D, al_a: Any, al_b: Any, settings: EvalSet
     """Recover ``b``'s clock relative to ``a``'s (``b`` at ``xi(t)`` is as developed as ``a`` at ``t``)."""
     from ..temporal.spatiotemporal import register4d
 
-    reg = register4d(al_a, al_b, settings.lambdas, rotation, n_t=settings.n_t, **settings.cross_args())
+    reg = register4d(al_a, al_b, settings.lambdas, rotation, n_t=settings.n_t, cross=settings.cross_settings())
     grid = reg.times.double()
     true = true_warp(a, b, grid)
     # the slot correspondence the 4D registration kept (matches are (B slot, A slot)) against the organs
@@ -296,7 +293,7 @@ def run(datas: dict[str, EvalData], settings: EvalSettings, progress: bool = Fal
             "cross": "cross-plant registrations of synthetic frames (vertical rotation)",
             "growth_warp": "spatiotemporal registrations of synthetic plant pairs (register4d) and oracle warps"}
     return {"synthetic": {"kinds": kinds, "lambdas": list(settings.lambdas), "n_t": settings.n_t,
-                          "cross_registration": settings.cross_args()},
+                          "cross_registration": settings.cross_settings().to_dict()},
             "timings": {f"synthetic_{k}": {"seconds": v, "paper_seconds": None, "what": what[k]}
                         for k, v in timings.items()}}
 

@@ -1,4 +1,4 @@
-"""The generative model of 4D trees (SPEC §5): 4D mean and modes, the truncated-Gaussian sampler, forecasting,
+"""The generative model of 4D trees (docs/method.md §5): 4D mean and modes, the truncated-Gaussian sampler, forecasting,
 the bundled :class:`FourDTreeModel` and its checkpoints (``load``)."""
 
 from .checkpoint import CheckpointError, load, save_model

@@ -1,9 +1,11 @@
-"""Checkpoints of :class:`FourDTreeModel` (SPEC §6): one file, readable with ``torch.load(weights_only=True)``.
+"""Checkpoints of :class:`FourDTreeModel` (docs/method.md §6): one file, readable with
+``torch.load(weights_only=True)``.
 
 The file is a dict: ``format`` (:data:`FORMAT`), ``version`` (:data:`VERSION`), ``config`` (the run's settings,
-free-form JSON-like), ``args`` (the model's constructor arguments) and ``state_dict`` (tensors and plain Python
-extra states only). Anything else, including a truncated or corrupt file, raises :class:`CheckpointError` with
-the path and what is wrong.
+free-form JSON-like), ``args`` (the model's :class:`~torch4dtree.settings.ModelSettings` as a plain dict,
+:meth:`~torch4dtree.settings.ModelSettings.to_dict`; the flat form with ``positions`` / ``cross_lp`` /
+``cross_order_tol`` at the top level loads too) and ``state_dict`` (tensors and plain Python extra states only).
+Anything else, including a truncated or corrupt file, raises :class:`CheckpointError` with the path and what is wrong.
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ from typing import Any
 import torch
 
 from ..io.files import write_bytes_safely
+from ..settings import ModelSettings
 from ..trees.structures import TreeError
 from .fourd import FourDTreeModel
 
@@ -30,13 +33,20 @@ class CheckpointError(TreeError):
 
 def save_model(model: FourDTreeModel, path: str | Path, config: dict[str, Any] | None = None,
                overwrite: bool = False) -> Path:
-    """Write ``model`` (fitted) to ``path`` atomically; refuses an existing file unless ``overwrite``."""
+    """Write ``model`` (fitted) to ``path`` atomically; refuses an existing file unless ``overwrite``.
+
+    Example (a fitted model round-trips: ``load(save_model(model, path)).settings == model.settings``):
+        >>> save_model(FourDTreeModel(), "model.pt")
+        Traceback (most recent call last):
+        ...
+        ValueError: the model is not fitted: nothing to save
+    """
     if not isinstance(model, FourDTreeModel):
         raise TypeError(f"expected a FourDTreeModel, got {type(model).__name__}")
     if not model.is_fitted:
         raise ValueError("the model is not fitted: nothing to save")
     state = {k: v.detach().cpu() if isinstance(v, torch.Tensor) else v for k, v in model.state_dict().items()}
-    payload = {"format": FORMAT, "version": VERSION, "config": dict(config or {}), "args": dict(model.args),
+    payload = {"format": FORMAT, "version": VERSION, "config": dict(config or {}), "args": model.settings.to_dict(),
                "state_dict": state}
     buf = io.BytesIO()
     torch.save(payload, buf)
@@ -66,10 +76,20 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
 
 
 def load(path: str | Path, map_location: str | torch.device = "cpu") -> FourDTreeModel:
-    """Rebuild a :class:`FourDTreeModel` from a checkpoint; ``model.checkpoint_config`` holds the run's config."""
+    """Rebuild a :class:`FourDTreeModel` from a checkpoint; ``model.checkpoint_config`` holds the run's config.
+
+    Settings saved in the flat form (``registration`` / ``temporal`` dicts, ``positions`` / ``cross_lp`` /
+    ``cross_order_tol`` at the top level) are rebuilt as :class:`~torch4dtree.settings.ModelSettings`.
+
+    Example:
+        >>> load("no/such/model.pt")
+        Traceback (most recent call last):
+        ...
+        torch4dtree.model.checkpoint.CheckpointError: no/such/model.pt: no such checkpoint file
+    """
     payload = read_checkpoint(path)
     try:
-        model = FourDTreeModel(**payload["args"])
+        model = FourDTreeModel(ModelSettings.from_dict(payload["args"]))
         model.load_state_dict(payload["state_dict"])
     except (TypeError, ValueError, KeyError, RuntimeError) as e:
         raise CheckpointError(f"{path}: the checkpoint does not rebuild a model ({type(e).__name__}: {e})") from None

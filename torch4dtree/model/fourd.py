@@ -1,4 +1,4 @@
-"""The generative model of 4D trees (SPEC §5, paper §4.2 / §5.3): tree space, 4D mean and modes, sampler.
+"""The generative model of 4D trees (docs/method.md §5, paper §4.2 / §5.3): tree space, 4D mean and modes, sampler.
 
 ``FourDTreeModel`` bundles the fitted pipeline:
 
@@ -13,6 +13,7 @@ grid times the mean duration.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
 from typing import Any, NamedTuple
@@ -20,11 +21,11 @@ from typing import Any, NamedTuple
 import torch
 from torch import Tensor, nn
 
+from ..settings import ModelSettings
+from ..space.fitted import NotFittedError
 from ..space.pca import principal_axes, variance_components
 from ..temporal.population import Population
 from ..temporal.registration import time_warp_trajectory
-from ..temporal.spatiotemporal import CROSS_LP, CROSS_ORDER_TOL, CROSS_POSITIONS
-from ..trees.registration import register_to_reference
 from ..trees.structures import Trees, TreeSequence
 from .sampler import TruncatedNormalSampler
 from .trajectory import TrajectoryMean, TrajectoryPCA, flatten_srvf
@@ -101,32 +102,34 @@ class FourDTreeModel(nn.Module):
     """Generative model of 4D trees. Build with the settings, then :meth:`fit` (CPU), or :func:`torch4dtree.load`.
 
     Args:
-        lambdas, rotation, n_t, tree_components, tree_variance, medoid_candidates, registration, positions,
-            cross_lp, cross_order_tol: the tree space (:class:`~torch4dtree.temporal.population.Population`;
-            ``positions``, ``cross_lp`` and ``cross_order_tol`` are its cross-sequence registrations' settings).
-        modes, mode_variance: the trajectory PCA (a fixed number of modes or the variance share kept).
-        c: the sampler's truncation bound.
-        mean_iters, temporal: the 4D Karcher mean's rounds and the temporal DP settings.
+        settings: the tree space (:class:`~torch4dtree.temporal.population.Population`: ``lambdas``, ``rotation``,
+            ``n_t``, ``tree_components`` / ``tree_variance``, ``medoid_candidates``, ``registration``, ``cross``),
+            the 4D Karcher mean (``mean_iters``, ``temporal``), the trajectory PCA (``modes`` / ``mode_variance``)
+            and the sampler's bound ``c``; default :class:`~torch4dtree.settings.ModelSettings`'s.
+
+    Example:
+        >>> from torch4dtree.data import synthetic_plant
+        >>> from torch4dtree.settings import ModelSettings
+        >>> plants = [synthetic_plant("maize", i, n_frames=3, T=8).sequence for i in range(3)]
+        >>> model = FourDTreeModel(ModelSettings(n_t=4, medoid_candidates=1)).fit(plants)
+        >>> z = model.encode(plants[0])
+        >>> z.shape == (model.n_modes,)
+        True
+        >>> out = model(z[None])
+        >>> len(model.decode(z[None])), len(model.sample(2, torch.Generator().manual_seed(0)))
+        (1, 2)
     """
 
-    def __init__(self, lambdas: Sequence[float] = (1.0, 1.0, 1.0), rotation: str = "none", n_t: int = 32,
-                 tree_components: int | None = None, tree_variance: float = 0.99, medoid_candidates: int = 3,
-                 registration: dict[str, Any] | None = None, modes: int | None = None, mode_variance: float = 0.95,
-                 c: float = 3.0, mean_iters: int = 10, temporal: dict[str, Any] | None = None,
-                 positions: str = CROSS_POSITIONS, cross_lp: float | None = CROSS_LP,
-                 cross_order_tol: float | None = CROSS_ORDER_TOL) -> None:
+    def __init__(self, settings: ModelSettings | None = None) -> None:
         super().__init__()
-        self.args = {"lambdas": [float(x) for x in lambdas], "rotation": rotation, "n_t": n_t,
-                     "tree_components": tree_components, "tree_variance": tree_variance,
-                     "medoid_candidates": medoid_candidates, "registration": dict(registration or {}),
-                     "modes": modes, "mode_variance": mode_variance, "c": float(c), "mean_iters": mean_iters,
-                     "temporal": dict(temporal or {}), "positions": positions, "cross_lp": cross_lp,
-                     "cross_order_tol": cross_order_tol}
-        self.population = Population(lambdas, rotation, n_t, tree_components, tree_variance, medoid_candidates,
-                                     registration, positions, cross_lp, cross_order_tol)
-        self.mean = TrajectoryMean(mean_iters, registration=temporal)
-        self.pca = TrajectoryPCA(modes, mode_variance)
-        self.sampler = TruncatedNormalSampler(1, c)
+        if settings is not None and not isinstance(settings, ModelSettings):
+            raise TypeError(f"settings must be a ModelSettings, got {type(settings).__name__}")
+        self.settings = s = settings or ModelSettings()
+        self.population = Population(s.lambdas, s.rotation, s.n_t, s.tree_components, s.tree_variance,
+                                     s.medoid_candidates, s.registration, s.cross)
+        self.mean = TrajectoryMean(s.mean_iters, registration=s.temporal)
+        self.pca = TrajectoryPCA(s.modes, s.mode_variance)
+        self.sampler = TruncatedNormalSampler(1, s.c)
         self.register_buffer("time_start", torch.tensor(0.0, dtype=torch.float64))
         self.register_buffer("duration", torch.tensor(1.0, dtype=torch.float64))
         self.register_buffer("obs_noise", torch.tensor(1.0, dtype=torch.float64))
@@ -157,10 +160,11 @@ class FourDTreeModel(nn.Module):
         # the gain is one scalar (checkpoints before the per-component gain) or (k,): a shape, taken from the state
         self.forecast_gain = torch.zeros_like(state_dict["forecast_gain"], dtype=torch.float64)
         out = super().load_state_dict(state_dict, strict, assign)
-        # the population's saved settings win (a state saved before they existed was fitted with warped positions,
-        # the space's lp, children in any order)
-        self.args.update(positions=self.population.positions, cross_lp=self.population.cross_lp,
-                         cross_order_tol=self.population.cross_order_tol)
+        # the population's saved cross settings win (a state without them was fitted with warped positions, the
+        # space's lp, children in any order)
+        cross = dataclasses.replace(self.settings.cross, positions=self.population.cross.positions,
+                                    lp=self.population.cross.lp, order_tol=self.population.cross.order_tol)
+        self.settings = dataclasses.replace(self.settings, cross=cross)
         return out
 
     @property
@@ -247,9 +251,9 @@ class FourDTreeModel(nn.Module):
         out = torch.full((refs.num_trees,), math.inf, dtype=torch.float64)
         for j in range(refs.num_trees):
             if j != exclude:
-                reg = register_to_reference(frame.to(dtype=torch.float64), refs[j], pop.cross_lambdas_, pop.rotation,
-                                            lp_relative=False, symmetric=False, positions=pop.positions,
-                                            **pop.registration)[0]
+                reg = pop.registration.register(frame.to(dtype=torch.float64), refs[j], pop.cross_lambdas_,
+                                                pop.rotation, positions=pop.cross.positions, order_tol=None,
+                                                lp_relative=False, symmetric=False)[0]
                 out[j] = float(reg.distance)
         return out
 
@@ -269,14 +273,12 @@ class FourDTreeModel(nn.Module):
         their first half: the gains ``beta (k,)`` of the plant's own last observed deviation from the 4D mean, and
         the width and weight of the analogue term.
 
-        **Each left-out plant is written as a new plant would be.** A training plant's frames lie in the span of
-        the tree PCA, which it helped fit; a new plant's are projected onto it and lose what no training plant
-        had, so a new plant's later frames sit closer to the 4D mean (synthetic tomato: 16 against 23 per frame,
-        issue 13) and in-sample deviations over-promise. Plant ``i``'s features (its first half encoded alone, and
-        its later frames as its whole sequence wrote them) are therefore projected onto the principal subspace of
-        the *other* plants' frames (the same variance share or number of components as the fit) before they are
-        written in the model's coordinates. (Without this the left-out errors left the analogue term out on 4 of
-        tomato seeds 3-8; on held-out plants it would have won on 3 of those 4.)
+        **Each left-out plant is written as a new plant would be.** A training plant's frames lie in the span of the
+        tree PCA, which it helped fit; a new plant's are projected onto it and lose what no training plant had, so a new
+        plant's later frames sit closer to the 4D mean and in-sample deviations over-promise. Plant ``i``'s features
+        (its first half encoded alone, and its later frames as its whole sequence wrote them) are therefore projected
+        onto the principal subspace of the *other* plants' frames (the same variance share or number of components as
+        the fit) before they are written in the model's coordinates.
 
         * Gains: per component ``beta_c = sum f_c d_c / sum d_c^2`` clipped to ``[0, 1]`` (:func:`persistence_betas`:
           ``d`` the observed deviation at the last observed frame, ``f`` the later ones; plant ``i`` forecast with
@@ -294,7 +296,9 @@ class FourDTreeModel(nn.Module):
         ``loo_error`` (of the chosen width, per ``a`` then ``b``, relative to the 4D mean's), ``plants``.
         """
         layout = self.population.layout_
-        assert layout is not None, "called right after Population.fit (its training frames are not saved)"
+        if layout is None:
+            raise NotFittedError("the forecast is calibrated right after Population.fit (its training frames are "
+                                 "not saved)")
         pca = self.population.pca
         feats = layout.features().detach().to(torch.float64)
         counts = [len(s) for s in self.population.sequences_]
@@ -381,8 +385,6 @@ class FourDTreeModel(nn.Module):
     # ------------------------------------------------------------------------ analysis
     def _check_fitted(self) -> None:
         if not self.is_fitted:
-            from ..space.fitted import NotFittedError
-
             raise NotFittedError("FourDTreeModel is not fitted: call fit() or torch4dtree.load()")
 
     def encode(self, sequence: TreeSequence) -> Tensor:
@@ -416,10 +418,9 @@ class FourDTreeModel(nn.Module):
         * the *analogue* term (``forecast_analogue`` = width, ``a``, ``null``): the training plants' own later
           deviations, weighted ``w_i ~ exp(-d_i^2 / width)`` by the registered tree distance ``d_i`` of the last
           observed frame to plant ``i`` at that age, beside a pseudo-plant at squared distance ``null`` that keeps
-          the 4D mean. A registration needs no slot assignment, which is what makes a young
-          plant's encoding ``y_L`` noisy (issue 13: half of a young tomato's branches land in other slots than in
-          its whole sequence). Costs ``N`` tree registrations per forecast (skipped where ``a = 0``).
-
+          the 4D mean. A registration needs no slot assignment, which is what makes a young plant's encoding ``y_L``
+          noisy (a young plant's branches can land in other slots than in its whole sequence). Costs ``N`` tree
+          registrations per forecast (skipped where ``a = 0``).
         Both are shrunk by leave-one-out (0, the 4D mean alone, allowed). Conditioning the modes instead lost to the
         mean at the same age with 7 training plants (the modes of a few plants carry little of a new plant's future).
 
@@ -435,15 +436,12 @@ class FourDTreeModel(nn.Module):
         t_obs = enc.times.to(torch.float64)
         t_out = torch.as_tensor(times, dtype=torch.float64).reshape(-1)
         D = float(self.duration)
-        best = None
+        fits = []
         for r in FORECAST_RATES:
             u = ((t_obs - t_obs[0]) * r / D).clamp(0, 1)
             z, cov, energy = self._condition(y, u)
-            energy += (math.log(r) / FORECAST_RATE_SPREAD) ** 2
-            if best is None or energy < best[0]:
-                best = (energy, r, z, cov)
-        assert best is not None
-        _, r, z, cov = best
+            fits.append((energy + (math.log(r) / FORECAST_RATE_SPREAD) ** 2, r, z, cov))
+        _, r, z, cov = min(fits, key=lambda x: x[0])
         u_out = ((t_out - t_obs[0]) * r / D).clamp(0, 1)
         beta = self.forecast_gain.to(y)  # (k,), or () from a checkpoint before the per-component gain
         gain = float(beta.mean())

@@ -1,4 +1,4 @@
-"""4D statistics of trajectories (SPEC §5, paper §4.2): the 4D Karcher mean and the PCA of registered trajectories.
+"""4D statistics of trajectories (docs/method.md §5, paper §4.2): the 4D Karcher mean and the trajectory PCA.
 
 A 4D tree is ``(alpha(0), q)``: its trajectory's start point and SRVF (:mod:`torch4dtree.temporal.trajectory`).
 Flattened as ``x = [alpha(0), q / sqrt(n_t - 1)]`` the Euclidean norm of differences is the 4D distance of
@@ -14,11 +14,12 @@ from typing import Any
 import torch
 from torch import Tensor
 
+from ..settings import TemporalSettings, check_at_least
 from ..space.fitted import FittedModule, NotFittedError
 from ..space.pca import check_components, principal_axes, variance_components
-from ..temporal.registration import TemporalRegistration, register_trajectories, time_warp_trajectory
+from ..temporal.registration import TemporalRegistration, time_warp_trajectory
 from ..temporal.trajectory import trajectory_from_srvf, trajectory_srvf
-from ..temporal.within import _inverse_at
+from ..temporal.within import inverse_at
 
 # trajectories decoded per chunk by TrajectoryPCA.trajectories (see there)
 SAMPLE_CHUNK = 1024
@@ -59,7 +60,7 @@ def centre_warps(warp: Tensor) -> Tensor:
     N, n_t = warp.shape
     grid = torch.linspace(0, 1, n_t, dtype=warp.dtype, device=warp.device)
     mean = warp.mean(0)
-    inverse = _inverse_at(mean.expand(n_t, n_t), grid)  # gamma_bar^{-1} on the grid
+    inverse = inverse_at(mean.expand(n_t, n_t), grid)  # gamma_bar^{-1} on the grid
     return time_warp_trajectory(warp[..., None], inverse.expand(N, n_t))[..., 0]
 
 
@@ -71,47 +72,57 @@ class TrajectoryMean(FittedModule):
         max_iters: at most this many rounds of registration onto a mean.
         tol: stop when the energy (sum of squared 4D distances to the mean) decreases by less than ``tol``
             relatively.
-        registration: keyword arguments of :func:`register_trajectories` (DP settings).
+        registration: the time-warp DP (:class:`~torch4dtree.settings.TemporalSettings`; no time weight: the
+            4D mean is defined with the rate-invariant distance).
 
     Fitted buffers: ``start (k,)``, ``q (n_t - 1, k)``, ``trajectory (n_t, k)``. ``energies_`` (one per round,
     the energy of the registrations onto that round's mean) travels in the extra state; the mean kept is the
     round of lowest energy.
+
+    Example:
+        >>> t = torch.linspace(0, 1, 8, dtype=torch.float64)[:, None]
+        >>> alpha = torch.stack([torch.cat([t, t ** p], 1) for p in (1.0, 2.0, 3.0)])
+        >>> mean = TrajectoryMean(max_iters=3).fit(alpha)
+        >>> mean.trajectory.shape
+        torch.Size([8, 2])
     """
 
     _fitted_buffers = ("start", "q", "trajectory")
 
-    def __init__(self, max_iters: int = 10, tol: float = 1e-3, registration: dict[str, Any] | None = None) -> None:
+    def __init__(self, max_iters: int = 10, tol: float = 1e-3, registration: TemporalSettings | None = None
+                 ) -> None:
         super().__init__()
-        if max_iters < 1:
-            raise ValueError(f"max_iters must be at least 1, got {max_iters}")
-        self.max_iters, self.tol = int(max_iters), float(tol)
-        self.registration = dict(registration or {})
+        self.max_iters, self.tol = check_at_least("max_iters", max_iters, 1), float(tol)
+        if registration is not None and not isinstance(registration, TemporalSettings):
+            raise TypeError(f"registration must be a TemporalSettings, got {type(registration).__name__}")
+        self.registration = registration or TemporalSettings()
         self.energies_: list[float] = []
         for name, shape in (("start", (0,)), ("q", (0, 0)), ("trajectory", (0, 0))):
             self.register_buffer(name, torch.zeros(shape))
 
     def get_extra_state(self) -> dict[str, Any]:
-        return {"version": 1, "max_iters": self.max_iters, "tol": self.tol, "registration": dict(self.registration),
+        return {"version": 1, "max_iters": self.max_iters, "tol": self.tol, "registration": self.registration.to_dict(),
                 "energies": list(self.energies_)}
 
     def set_extra_state(self, state: dict[str, Any]) -> None:
         if not isinstance(state, dict) or state.get("version") != 1:
             raise ValueError("not a TrajectoryMean state")
         self.max_iters, self.tol = state["max_iters"], state["tol"]
-        self.registration, self.energies_ = dict(state["registration"]), list(state["energies"])
+        self.registration = TemporalSettings.from_dict(state["registration"])
+        self.energies_ = list(state["energies"])
 
     @property
     def is_fitted(self) -> bool:
         return self.trajectory.shape[0] > 0
 
     def register(self, alpha: Tensor) -> TemporalRegistration:
-        """Time-warp trajectories ``alpha (..., n_t, k)`` onto the mean (batched :func:`register_trajectories`)."""
+        """Time-warp trajectories ``alpha (..., n_t, k)`` onto the mean (batched temporal registration)."""
         if not self.is_fitted:
             raise NotFittedError("TrajectoryMean is not fitted")
         if alpha.shape[-2:] != self.trajectory.shape:
             raise ValueError(f"trajectories must end with {tuple(self.trajectory.shape)}, got {tuple(alpha.shape)}")
         mov = alpha.to(self.trajectory)
-        return register_trajectories(self.trajectory.expand_as(mov), mov, **self.registration)
+        return self.registration.register(self.trajectory.expand_as(mov), mov)
 
     def fit(self, alpha: Tensor) -> TrajectoryMean:
         """Fit on ``alpha (N, n_t, k)``. Returns ``self``; ``registered_`` holds the registrations onto the result.
@@ -125,20 +136,18 @@ class TrajectoryMean(FittedModule):
         start, q = trajectory_srvf(a)
         mean_start, mean_q = start.mean(0), q.mean(0)
         self.energies_ = []
-        best: tuple[float, Tensor, TemporalRegistration] | None = None
+        rounds: list[tuple[float, Tensor, TemporalRegistration]] = []
         for _ in range(self.max_iters):
             self._set_fitted(start=mean_start, q=mean_q, trajectory=trajectory_from_srvf(mean_start, mean_q))
             reg = self.register(a)
             energy = float(reg.distance.square().sum())
             self.energies_.append(energy)
-            if best is None or energy < best[0]:
-                best = (energy, mean_q, reg)
+            rounds.append((energy, mean_q, reg))
             if len(self.energies_) > 1 and self.energies_[-2] - energy <= self.tol * max(self.energies_[-2], 1e-300):
                 break
             _, q_centred = trajectory_srvf(time_warp_trajectory(a, centre_warps(reg.warp)))
             mean_q = q_centred.mean(0)
-        assert best is not None
-        _, mean_q, self.registered_ = best
+        _, mean_q, self.registered_ = min(rounds, key=lambda x: x[0])
         self._set_fitted(start=mean_start, q=mean_q, trajectory=trajectory_from_srvf(mean_start, mean_q))
         return self
 
@@ -153,6 +162,14 @@ class TrajectoryPCA(FittedModule):
     Fitted buffers: ``mean (D,)`` (``D = k * n_t``, :func:`flatten_srvf`), ``components (m, D)`` orthonormal,
     ``explained_variance (m,)`` (``u_i``, with ``1/(N-1)``), ``explained_variance_ratio (m,)``. Copies of one
     trajectory give one component of zero variance.
+
+    Example:
+        >>> from torch4dtree.temporal import trajectory_srvf
+        >>> t = torch.linspace(0, 1, 8, dtype=torch.float64)[:, None]
+        >>> start, q = trajectory_srvf(torch.stack([torch.cat([t, a * t ** 2], 1) for a in (0.5, 1.0, 2.0)]))
+        >>> pca = TrajectoryPCA(n_components=1).fit(start, q)
+        >>> pca.trajectories(torch.zeros(1, 1, dtype=torch.float64)).shape
+        torch.Size([1, 8, 2])
     """
 
     _fitted_buffers = ("mean", "components", "explained_variance", "explained_variance_ratio")

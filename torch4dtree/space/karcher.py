@@ -1,4 +1,4 @@
-"""Karcher mean of 3D trees (SPEC §4, paper §4.1): register every tree onto the mean, average, repeat.
+"""Karcher mean of 3D trees (docs/method.md §4, paper §4.1): register every tree onto the mean, average, repeat.
 
 The mean lives in a **slot layout** (``S`` slots, parents first, depth-first with children by ``s``). One
 iteration:
@@ -9,7 +9,7 @@ iteration:
 2. **union layout**: the mean's slots, then one new slot per tree branch that matched nothing (a child of
    the slot its parent went to), null in every other tree;
 3. average the registered SRVFTs: ``q`` over all trees (a null branch is ``q = 0``), ``s`` over the trees
-   that have the branch (a null partner's ``s`` costs nothing, SPEC §3), roots over all trees;
+   that have the branch (a null partner's ``s`` costs nothing, docs/method.md §3), roots over all trees;
 4. **prune** the slots whose average branch length over the trees (a null branch counts 0) is below
    ``prune_length`` times the average main-branch length, with their descendants, and put the rest in
    canonical order. (Not the length of the mean branch: for a branch that ``k`` of ``n`` trees share it is
@@ -25,10 +25,9 @@ mean already had could raise it, so if it would, only new slots are pruned in th
 
 from __future__ import annotations
 
-import inspect
 import math
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
@@ -36,8 +35,9 @@ import torch
 from torch import Tensor
 
 from ..curves.srvf import interpolate_curve, inverse_srvf, srvf, srvf_sq_norm
+from ..settings import ROTATIONS, RegistrationSettings, check_choice, check_lambdas
 from ..trees.aligned import AlignedTrees, Lambdas, slot_weights
-from ..trees.registration import RELATIVE_LP_SCALE, TreeRegistration, check_lambdas, register_to_reference
+from ..trees.registration import RELATIVE_LP_SCALE, TreeRegistration
 from ..trees.structures import Trees
 from .fitted import FittedModule, NotFittedError
 
@@ -47,12 +47,8 @@ __all__ = ["KarcherMean", "MeanRegistration", "SlotLimitError"]
 DEFAULT_PRUNE = 0.01
 # slots shorter than this fraction of the main branch are null whatever prune_length says
 NULL_FRACTION = 1e-9
-ROTATIONS = ("none", "vertical", "so3")
 # the medoid rule ranks its candidates on branches resampled to this many points
 MEDOID_T = 24
-# register_to_reference settings a KarcherMean passes through (lambdas and rotation are its own)
-REGISTRATION_KEYS = tuple(k for k in inspect.signature(register_to_reference).parameters
-                          if k not in ("trees", "reference", "lambdas", "rotation", "positions"))
 
 
 class SlotLimitError(ValueError):
@@ -281,10 +277,10 @@ def _carry(c: _Carry, i: int, mean: _Mean) -> _Registered:
 
 
 class KarcherMean(FittedModule):
-    """Karcher mean of 3D trees in a growing slot layout (SPEC §4). See the module docstring for the algorithm.
+    """Karcher mean of 3D trees in a growing slot layout (docs/method.md §4; the algorithm in the module doc).
 
     Args:
-        lambdas: ``(lm, ls, lp)`` metric weights (SPEC §3 order).
+        lambdas: ``(lm, ls, lp)`` metric weights (docs/method.md §3).
         rotation: ``"none"``, ``"vertical"`` or ``"so3"`` (registration onto the mean).
         max_iters: at most this many rounds of registration onto a mean (the first is onto the initial one).
         tol: stop when the mean moved by less than ``tol`` relatively (``|f(new) - f(old)| / |f(old)|`` in the
@@ -302,8 +298,9 @@ class KarcherMean(FittedModule):
             the input order (ties aside). Or an ``int``: that tree.
         medoid_subsample: subsample size of the medoid rule (it costs ``m^2`` pair registrations).
         progress: a tqdm bar over the iterations.
-        registration: keyword arguments of :func:`~torch4dtree.trees.register_to_reference` (``n_starts``,
-            ``neighbourhood``, ``up``...; its ``max_iters`` / ``tol`` are the registration's own).
+        registration: how the registrations onto the mean search
+            (:class:`~torch4dtree.settings.RegistrationSettings`; its ``max_iters`` / ``tol`` are the registration's
+            own). They match children by the layout's own metric (``positions="warped"``), in any order.
         lp_relative: ``lp`` is relative to the trees' size (as in :func:`~torch4dtree.trees.register_to_reference`):
             ``fit`` multiplies it once by ``RELATIVE_LP_SCALE`` times the trees' median main-branch length (one metric
             for every round); afterwards ``lambdas`` holds the effective weights and ``lp_relative`` is False.
@@ -320,6 +317,13 @@ class KarcherMean(FittedModule):
     and ``seconds`` (wall time of the round, the initialisation included in round 0).
     ``n_iter_ = len(history)``, ``converged_`` whether ``tol`` was met before ``max_iters``, ``init_index_`` the
     tree the mean started from.
+
+    Example:
+        >>> from torch4dtree.data import synthetic_plant
+        >>> trees = synthetic_plant("maize", 0, n_frames=3, T=8).sequence.frames
+        >>> km = KarcherMean(max_iters=2, progress=False).fit(trees)
+        >>> km.mean_tree().num_trees, km.transform(trees).distance.shape
+        (1, torch.Size([3]))
     """
 
     _fitted_buffers = ("mean_q", "mean_s", "mean_root", "slot_parent", "slot_depth")
@@ -327,27 +331,22 @@ class KarcherMean(FittedModule):
     def __init__(self, lambdas: Sequence[float] = (1.0, 1.0, 1.0), rotation: str = "none", max_iters: int = 20,
                  tol: float = 1e-4, max_slots: int = 512, prune_length: float = DEFAULT_PRUNE,
                  init: str | int = "medoid", medoid_subsample: int = 8, progress: bool = True,
-                 registration: Mapping[str, Any] | None = None, lp_relative: bool = True) -> None:
+                 registration: RegistrationSettings | None = None, lp_relative: bool = True) -> None:
         super().__init__()
         self.lambdas: Lambdas = check_lambdas(lambdas)
         self.lp_relative = bool(lp_relative)
-        if rotation not in ROTATIONS:
-            raise ValueError(f"rotation must be one of {ROTATIONS}, got {rotation!r}")
+        check_choice("rotation", rotation, ROTATIONS)
         if max_iters < 1 or not tol >= 0 or max_slots < 1 or not prune_length >= 0 or medoid_subsample < 1:
             raise ValueError(f"need max_iters >= 1, tol >= 0, max_slots >= 1, prune_length >= 0 and "
                              f"medoid_subsample >= 1; got {max_iters}, {tol}, {max_slots}, {prune_length}, "
                              f"{medoid_subsample}")
         if not (init == "medoid" or (isinstance(init, int) and not isinstance(init, bool))):
             raise ValueError(f"init must be 'medoid' or a tree index, got {init!r}")
-        reg = dict(registration or {})
-        unknown = sorted(set(reg) - set(REGISTRATION_KEYS))
-        if unknown:
-            raise ValueError(f"unknown registration settings {unknown}; allowed: {REGISTRATION_KEYS}")
-        if isinstance(reg.get("up"), Tensor):
-            reg["up"] = [float(x) for x in reg["up"].tolist()]  # plain values, so the extra state loads safely
         self.rotation, self.max_iters, self.tol, self.max_slots = rotation, int(max_iters), float(tol), int(max_slots)
         self.prune_length, self.init, self.medoid_subsample = float(prune_length), init, int(medoid_subsample)
-        self.progress, self.registration = bool(progress), reg
+        if registration is not None and not isinstance(registration, RegistrationSettings):
+            raise TypeError(f"registration must be a RegistrationSettings, got {type(registration).__name__}")
+        self.progress, self.registration = bool(progress), registration or RegistrationSettings()
         self.history: list[dict[str, float]] = []
         self.n_iter_ = 0
         self.converged_ = False
@@ -363,7 +362,7 @@ class KarcherMean(FittedModule):
         return {"version": 1, "lambdas": list(self.lambdas), "lp_relative": self.lp_relative,
                 "rotation": self.rotation, "max_iters": self.max_iters,
                 "tol": self.tol, "max_slots": self.max_slots, "prune_length": self.prune_length, "init": self.init,
-                "medoid_subsample": self.medoid_subsample, "registration": dict(self.registration),
+                "medoid_subsample": self.medoid_subsample, "registration": self.registration.to_dict(),
                 "history": [dict(h) for h in self.history], "n_iter": self.n_iter_, "converged": self.converged_,
                 "init_index": self.init_index_}
 
@@ -374,7 +373,8 @@ class KarcherMean(FittedModule):
         self.lp_relative = bool(state.get("lp_relative", False))
         self.rotation, self.max_iters, self.tol = state["rotation"], state["max_iters"], state["tol"]
         self.max_slots, self.prune_length, self.init = state["max_slots"], state["prune_length"], state["init"]
-        self.medoid_subsample, self.registration = state["medoid_subsample"], dict(state["registration"])
+        self.medoid_subsample = state["medoid_subsample"]
+        self.registration = RegistrationSettings.from_dict(state["registration"])
         self.history = [dict(h) for h in state["history"]]
         self.n_iter_, self.converged_, self.init_index_ = state["n_iter"], state["converged"], state["init_index"]
 
@@ -451,8 +451,8 @@ class KarcherMean(FittedModule):
     def _register(self, trees: Trees, mean: _Mean) -> list[_Registered]:
         # one way (symmetric=False): the trees are aligned onto the mean; an inverted solution would only fit worse
         # warped positions: the registrations minimise the layout's own metric, which the mean averages
-        regs = register_to_reference(trees, _decode(mean), self.lambdas, self.rotation, lp_relative=False,
-                                     symmetric=False, positions="warped", **self.registration)
+        regs = self.registration.register(trees, _decode(mean), self.lambdas, self.rotation, positions="warped",
+                                          order_tol=None, lp_relative=False, symmetric=False)
         return [_registered(r) for r in regs]
 
     def _initial_mean(self, trees: Trees) -> tuple[_Mean, list[_Registered] | None]:
@@ -473,13 +473,11 @@ class KarcherMean(FittedModule):
         coarse = trees.T > MEDOID_T
         ranking = trees.resample(MEDOID_T) if coarse else trees
         subtrees = ranking[sub]
-        best: tuple[float, int, list[_Registered]] | None = None
+        scored = []
         for c in sub:
             forms = self._register(subtrees, self._capped(_tree_mean(ranking[c], self.prune_length)))
-            energy = sum(f.sq_dist for f in forms)
-            if best is None or energy < best[0]:
-                best = (energy, c, forms)
-        assert best is not None
+            scored.append((sum(f.sq_dist for f in forms), c, forms))
+        best = min(scored, key=lambda x: x[0])
         self.init_index_ = best[1]
         mean = self._capped(_tree_mean(trees[best[1]], self.prune_length))
         if m < n or coarse:
@@ -580,7 +578,8 @@ class KarcherMean(FittedModule):
             bar.set_postfix(energy=f"{energy:.4g}", slots=mean.num_slots)
             mean, forms, prev = new, None, energy
         bar.close()
-        assert forms is not None
+        if forms is None:  # the loop's last round always registers (max_iters >= 1)
+            raise RuntimeError("internal error: the Karcher mean ended without registrations")
         mean.root = torch.stack([f.root for f in forms]).mean(0)  # not in the metric: also when stopping at round 0
         self.n_iter_ = len(self.history)
         depth = _slot_depth(mean.parent)

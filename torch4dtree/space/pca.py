@@ -1,4 +1,4 @@
-"""Tree PCA (SPEC §4, paper §4.1): principal components of registered trees' weighted SRVFT features.
+"""Tree PCA (docs/method.md §4, paper §4.1): principal components of registered trees' weighted SRVFT features.
 
 In a common slot layout :meth:`AlignedTrees.features` is a flat vector whose Euclidean norm of differences
 is the tree metric, so PCA is an SVD of the centred features. Coefficients are projections on orthonormal
@@ -16,8 +16,8 @@ import torch
 from torch import Tensor
 
 from ..curves.srvf import srvf_sq_norm
+from ..settings import check_lambdas
 from ..trees.aligned import AlignedTrees, Lambdas, SlotRows, rows_to_trees, slot_weights
-from ..trees.registration import check_lambdas
 from ..trees.structures import Trees
 from .fitted import FittedModule, NotFittedError
 
@@ -81,6 +81,15 @@ class TreePCA(FittedModule):
     ``mean_root (d,)`` (the roots are not features: decoding starts there), and the layout
     ``slot_parent (S,)``, ``slot_depth (S,)``; ``lambdas``, ``M``, ``d`` travel in the extra state, so a loaded
     module decodes on its own.
+
+    Example:
+        >>> from torch4dtree.data import synthetic_plant
+        >>> from torch4dtree.space import KarcherMean
+        >>> trees = synthetic_plant("maize", 0, n_frames=4, T=8).sequence.frames
+        >>> aligned = KarcherMean(max_iters=1, progress=False).fit_transform(trees).aligned
+        >>> pca = TreePCA(n_components=2).fit(aligned)
+        >>> pca.transform(aligned).shape, pca.decode(torch.zeros(1, 2, dtype=torch.float64)).num_trees
+        (torch.Size([4, 2]), 1)
     """
 
     _fitted_buffers = ("mean", "components", "explained_variance", "explained_variance_ratio", "mean_root",

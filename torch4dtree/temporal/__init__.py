@@ -1,4 +1,4 @@
-"""4D trees (SPEC §5): within-sequence registration, trajectories in R^k, temporal registration, 4D geodesics.
+"""4D trees (docs/method.md §5): within-sequence registration, trajectories in R^k, temporal registration, 4D geodesics.
 
 * :mod:`.within` registers every frame onto the next and writes a sequence in one slot layout
   (:class:`AlignedSequence`, one identity and one parameterisation per slot);

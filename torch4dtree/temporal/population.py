@@ -1,10 +1,9 @@
-"""The population tree space (SPEC §5): ``N`` 4D trees in one slot layout, a tree PCA, trajectories in ``R^k``.
+"""The population tree space (docs/method.md §5): ``N`` 4D trees in one slot layout, a tree PCA, trajectories.
 
 :func:`fit_population` runs, for ``N`` 4D trees:
 
 1. **within-sequence registration** of each (:func:`register_sequence` with its own weights, which favour
-   identities between consecutive frames: on synthetic maize 86 % of branches sit in their organ's slot after
-   chaining, against 65 % with the space's weights, ``evaluate/truth``); the space itself has one metric (``lp``
+   identities between consecutive frames); the space itself has one metric (``lp``
    relative to the median last-frame main-branch length, so it does not depend on which plant is the reference);
 2. **the reference**: the medoid of the representatives (:func:`representative_tree`) among
    ``medoid_candidates`` candidates, chosen by an order-independent rule (the candidates are the
@@ -15,14 +14,11 @@
    registered onto it one by one, in the order of their registered distance to the reference (ties by name, so the
    result does not depend on the input order): a branch matched to a union slot goes there, also to a slot an
    earlier plant opened, and an unmatched one opens a slot whose branch joins the union representative
-   (:func:`grow_union`). So a branch the reference lacks opens one slot that later plants can share (issue 13:
-   matching every plant onto the reference alone opened a slot per plant for it; 6 synthetic tomato plants,
-   ``synthetic_dataset("tomato", plants=6, seed=0, n_frames=8, T=32)``: 212 -> 164 slots, Pheno4D tomato ``.mat``
-   at T = 64: 227 -> 178). These registrations use the cross-sequence settings ``positions`` / ``cross_lp`` /
-   ``cross_order_tol`` (default node rank, lp 12 relative, organs kept in their order along the parent:
-   :data:`~torch4dtree.temporal.spatiotemporal.CROSS_POSITIONS`); the layout keeps the space's metric. Until a
-   slot is opened, the batched registrations onto the reference are reused; the later ones are one call per plant
-   (cross-sequence time there 6.4 -> 9.6 s, Pheno4D 14 -> 20 s);
+   (:func:`grow_union`). So a branch the reference lacks opens one slot that later plants can share, not one slot
+   per plant. These registrations use the cross-sequence settings (:class:`~torch4dtree.settings.CrossSettings`:
+   node ranks, lp 12 relative, organs kept in their order along the parent by default); the layout keeps the
+   space's metric. Until a slot is opened, the batched registrations onto the reference are reused; the later
+   ones are one call per plant;
 4. a :class:`TreePCA` on all frames, and each 4D tree's **trajectory** ``(n_t, k)`` on the normalised time grid
    ``linspace(0, 1, n_t)`` between its first and last frame (its ``time_spans`` give data units back).
 
@@ -41,16 +37,21 @@ from typing import Any, NamedTuple
 import torch
 from torch import Tensor
 
+from ..settings import (
+    DEFAULT_NT,
+    ROTATIONS,
+    CrossSettings,
+    RegistrationSettings,
+    check_at_least,
+    check_choice,
+    check_lambdas,
+)
 from ..space.fitted import FittedModule, NotFittedError
 from ..space.pca import TreePCA
 from ..trees.aligned import AlignedTrees, slot_weights
-from ..trees.registration import RELATIVE_LP_SCALE, check_lambdas, register_to_reference
+from ..trees.registration import RELATIVE_LP_SCALE, TreeRegistration
 from ..trees.structures import Trees, TreeSequence
 from .spatiotemporal import (
-    CROSS_LP,
-    CROSS_ORDER_TOL,
-    CROSS_POSITIONS,
-    check_cross_settings,
     combine_many,
     grow_union,
     open_slots,
@@ -61,8 +62,6 @@ from .trajectory import resample_trajectory
 from .within import AlignedSequence, register_sequence
 
 __all__ = ["Population", "SequenceEncoding", "fit_population"]
-
-ROTATIONS = ("none", "vertical", "so3")
 
 
 class SequenceEncoding(NamedTuple):
@@ -93,39 +92,42 @@ class Population(FittedModule):
         variance: share of the frames' variance the tree PCA keeps when ``n_components`` is None.
         medoid_candidates: how many representatives compete for the reference (each costs one batched
             registration of all ``N``).
-        registration: keyword arguments of the tree registrations (``neighbourhood``, ``n_starts``...).
-        positions, cross_lp, cross_order_tol: the cross-sequence registrations' (medoid, union, :meth:`transform`)
-            positions (``"warped"``, ``"arclength"`` or ``"rank"``), relative ``lp`` (``None``: ``lambdas[2]``; the
-            space's metric keeps ``lambdas``) and ``order_tol`` (``None``: children matched in any order), as in
-            :func:`~torch4dtree.temporal.register4d`. Within a sequence, :func:`register_sequence` keeps its own
-            (an ``order_tol`` in ``registration`` reaches only those).
+        registration: how the tree registrations search (within- and cross-sequence).
+        cross: the cross-sequence registrations' (medoid, union, :meth:`transform`) children's positions, relative
+            ``lp`` (``None``: ``lambdas[2]``; the space's metric keeps ``lambdas``) and ``order_tol``, as in
+            :func:`~torch4dtree.temporal.register4d` (its ``fallback_rotation`` is register4d's only). Within a
+            sequence, :func:`register_sequence` keeps its own.
 
     Fitted buffers: ``ref_points (S, T, d)``, ``ref_parent (S,)``, ``ref_s (S,)`` (the union representative,
     module doc step 3: one branch per layout slot, in slot order), ``trajectories (N, n_t, k)``,
     ``time_spans (N, 2)`` (first and last frame time of each training 4D tree); the tree PCA is the submodule
     ``pca``. ``lambdas_`` (the effective weights), ``cross_lambdas_`` (the cross registrations' effective weights),
     ``names_``, ``report_`` travel in the extra state.
+
+    Example:
+        >>> from torch4dtree.data import synthetic_plant
+        >>> plants = [synthetic_plant("maize", i, n_frames=3, T=8).sequence for i in range(2)]
+        >>> pop = Population(n_t=4, medoid_candidates=1).fit(plants)
+        >>> pop.trajectories.shape[:2]
+        torch.Size([2, 4])
     """
 
     _fitted_buffers = ("ref_points", "ref_parent", "ref_s", "trajectories", "time_spans")
 
-    def __init__(self, lambdas: Sequence[float] = (1.0, 1.0, 1.0), rotation: str = "none", n_t: int = 32,
+    def __init__(self, lambdas: Sequence[float] = (1.0, 1.0, 1.0), rotation: str = "none", n_t: int = DEFAULT_NT,
                  n_components: int | None = None, variance: float = 0.99, medoid_candidates: int = 3,
-                 registration: dict[str, Any] | None = None, positions: str = CROSS_POSITIONS,
-                 cross_lp: float | None = CROSS_LP, cross_order_tol: float | None = CROSS_ORDER_TOL) -> None:
+                 registration: RegistrationSettings | None = None, cross: CrossSettings | None = None) -> None:
         super().__init__()
-        check_cross_settings(positions, cross_lp, cross_order_tol)
-        if rotation not in ROTATIONS:
-            raise ValueError(f"rotation must be one of {ROTATIONS}, got {rotation!r}")
-        if not isinstance(n_t, int) or n_t < 2:
-            raise ValueError(f"n_t must be an integer >= 2, got {n_t!r}")
-        if medoid_candidates < 1:
-            raise ValueError(f"medoid_candidates must be at least 1, got {medoid_candidates}")
+        check_choice("rotation", rotation, ROTATIONS)
         self.lambdas = check_lambdas(lambdas)
-        self.rotation, self.n_t, self.medoid_candidates = rotation, n_t, int(medoid_candidates)
-        self.registration = dict(registration or {})
-        self.positions, self.cross_lp = positions, None if cross_lp is None else float(cross_lp)
-        self.cross_order_tol = None if cross_order_tol is None else float(cross_order_tol)
+        self.rotation, self.n_t = rotation, check_at_least("n_t", n_t, 2)
+        self.medoid_candidates = check_at_least("medoid_candidates", medoid_candidates, 1)
+        for name, value, kind in (("registration", registration, RegistrationSettings),
+                                  ("cross", cross, CrossSettings)):
+            if value is not None and not isinstance(value, kind):
+                raise TypeError(f"{name} must be a {kind.__name__}, got {type(value).__name__}")
+        self.registration = registration or RegistrationSettings()
+        self.cross = cross or CrossSettings()
         self.lambdas_ = self.cross_lambdas_ = self.lambdas
         self.names_: list[str] = []
         self.report_: dict[str, Any] = {}
@@ -140,21 +142,21 @@ class Population(FittedModule):
 
     def get_extra_state(self) -> dict[str, Any]:
         return {"version": 1, "lambdas": list(self.lambdas), "rotation": self.rotation, "n_t": self.n_t,
-                "medoid_candidates": self.medoid_candidates, "registration": dict(self.registration),
+                "medoid_candidates": self.medoid_candidates, "registration": self.registration.to_dict(),
                 "lambdas_": list(self.lambdas_), "names": list(self.names_), "report": self.report_,
-                "positions": self.positions, "cross_lp": self.cross_lp, "cross_order_tol": self.cross_order_tol,
+                "positions": self.cross.positions, "cross_lp": self.cross.lp, "cross_order_tol": self.cross.order_tol,
                 "cross_lambdas_": list(self.cross_lambdas_)}
 
     def set_extra_state(self, state: dict[str, Any]) -> None:
         if not isinstance(state, dict) or state.get("version") != 1:
             raise ValueError("not a Population state (missing or unknown version)")
         self.lambdas, self.rotation, self.n_t = check_lambdas(state["lambdas"]), state["rotation"], state["n_t"]
-        self.medoid_candidates, self.registration = state["medoid_candidates"], dict(state["registration"])
+        self.medoid_candidates = state["medoid_candidates"]
+        self.registration = RegistrationSettings.from_dict(state["registration"])
         self.lambdas_ = check_lambdas(state["lambdas_"])
-        # states saved before a setting existed were fitted with warped positions, the space's lp, any order
-        self.positions, self.cross_lp = state.get("positions", "warped"), state.get("cross_lp")
-        self.cross_order_tol = state.get("cross_order_tol")
-        check_cross_settings(self.positions, self.cross_lp, self.cross_order_tol)
+        # a state without the cross settings was fitted with warped positions, the space's lp, children in any order
+        self.cross = CrossSettings(state.get("positions", "warped"), state.get("cross_lp"),
+                                   state.get("cross_order_tol"), self.cross.fallback_rotation)
         self.cross_lambdas_ = check_lambdas(state.get("cross_lambdas_", state["lambdas_"]))
         self.names_, self.report_ = list(state["names"]), dict(state["report"])
 
@@ -162,9 +164,12 @@ class Population(FittedModule):
     def is_fitted(self) -> bool:
         return self.trajectories.shape[0] > 0
 
-    def _cross_kwargs(self) -> dict[str, Any]:
-        """Keyword arguments of the cross-sequence registrations (the shared ones, then the cross settings)."""
-        return {**self.registration, "positions": self.positions, "order_tol": self.cross_order_tol}
+    def _register_cross(self, trees: Trees, reference: Trees, lam: tuple[float, float, float]
+                        ) -> list[TreeRegistration]:
+        """A cross-sequence registration of ``trees`` onto ``reference`` with weights ``lam`` (effective), one way
+        (``symmetric=False``: no inverted solutions, as every use of a layout's registrations)."""
+        return self.registration.register(trees, reference, lam, self.rotation, positions=self.cross.positions,
+                                          order_tol=self.cross.order_tol, lp_relative=False, symmetric=False)
 
     @property
     def k(self) -> int:
@@ -199,13 +204,13 @@ class Population(FittedModule):
         lm, ls, lp = self.lambdas
         lam = (lm, ls, lp * RELATIVE_LP_SCALE * float(lengths.median()))
         # the cross registrations' weights (the layout keeps lam)
-        self.cross_lambdas_ = lam if self.cross_lp is None else \
-            (lm, ls, self.cross_lp * RELATIVE_LP_SCALE * float(lengths.median()))
+        self.cross_lambdas_ = lam if self.cross.lp is None else \
+            (lm, ls, self.cross.lp * RELATIVE_LP_SCALE * float(lengths.median()))
         from tqdm.auto import tqdm
 
         # identities over time with register_sequence's own weights (lp relative to each frame pair: a plant's
         # young frames need it); the space's metric ``lam`` applies from the union layout on
-        aseqs = [register_sequence(s, progress=False, **self.registration)
+        aseqs = [register_sequence(s, progress=False, registration=self.registration)
                  for s in tqdm(seqs, disable=not progress, desc="within-sequence registration", unit="plant")]
         seconds["within_sequence"] = time.perf_counter() - t0
         t0 = time.perf_counter()
@@ -241,8 +246,8 @@ class Population(FittedModule):
             # each plant's registration the layout used: onto the union representative as it was at its turn
             "cross_distance_before": [float(r.distance_before) for r in regs],
             "cross_distance_after": [float(r.distance) for r in regs], "seconds": seconds,
-            "cross_registration": {"positions": self.positions, "lambdas": list(self.cross_lambdas_),
-                                   "order_tol": self.cross_order_tol},
+            "cross_registration": {"positions": self.cross.positions, "lambdas": list(self.cross_lambdas_),
+                                   "order_tol": self.cross.order_tol},
         }
         self._set_fitted(ref_points=union.points, ref_parent=union.parent, ref_s=union.s, trajectories=trajs,
                          time_spans=spans)
@@ -257,17 +262,13 @@ class Population(FittedModule):
         cands = sorted({ranked[round(j * (len(reps) - 1) / max(m - 1, 1))] for j in range(m)}) if m > 1 else \
             [ranked[(len(reps) - 1) // 2]]
         batch = Trees.cat(reps)
-        best: tuple[float, str, int, list[Any]] | None = None
         from tqdm.auto import tqdm
 
+        scored = []
         for c in tqdm(cands, disable=not progress, desc="choosing the reference", unit="candidate"):
-            # one way, as every use of a layout's registrations below (symmetric=False: no inverted solutions)
-            regs = register_to_reference(batch, reps[c], lam, self.rotation, lp_relative=False, symmetric=False,
-                                         **self._cross_kwargs())
-            energy = sum(float(r.distance) ** 2 for r in regs)
-            if best is None or (energy, names[c]) < best[:2]:
-                best = (energy, names[c], c, regs)
-        assert best is not None
+            regs = self._register_cross(batch, reps[c], lam)
+            scored.append((sum(float(r.distance) ** 2 for r in regs), names[c], c, regs))
+        best = min(scored, key=lambda x: x[:2])
         return best[2], best[3]
 
     def _union(self, aseqs: list[AlignedSequence], reps: list[Trees], names: list[str], ref: int, regs: list[Any],
@@ -287,8 +288,7 @@ class Population(FittedModule):
 
         for i in tqdm(movs, disable=not progress, desc="union layout", unit="plant"):
             if union.points.shape[0] > reps[ref].points.shape[0]:
-                regs[i] = register_to_reference(reps[i], union, lam, self.rotation, lp_relative=False,
-                                                symmetric=False, **self._cross_kwargs())[0]
+                regs[i] = self._register_cross(reps[i], union, lam)[0]
             gamma, rot = regs[i].gamma.to(torch.float64), regs[i].rotation.to(torch.float64)
             targets = open_slots(aseqs[i], regs[i].matches, slot_parent, slot_depth)
             union = grow_union(union, aseqs[i], targets, slot_parent, gamma, rot)
@@ -314,11 +314,10 @@ class Population(FittedModule):
                                  f"register the sequence resampled to T = {T}")
             seq = TreeSequence(seq.frames.resample(T), seq.times, seq.name)
         if aligned is None:
-            aligned = register_sequence(seq, **self.registration)  # as in fit
+            aligned = register_sequence(seq, registration=self.registration)  # as in fit
         rep = representative_tree(aligned)
         ref = self.reference_tree()
-        reg = register_to_reference(rep, ref, self.cross_lambdas_, self.rotation, lp_relative=False, symmetric=False,
-                                    **self._cross_kwargs())[0]
+        reg = self._register_cross(rep, ref, self.cross_lambdas_)[0]
         S_r = ref.points.shape[0]
         matched = dict(reg.matches)
         S_m = aligned.num_slots
@@ -355,10 +354,17 @@ class Population(FittedModule):
 
 
 def fit_population(sequences: Sequence[TreeSequence], lambdas: Sequence[float] = (1.0, 1.0, 1.0),
-                   rotation: str = "none", n_t: int = 32, variance: float = 0.99, n_components: int | None = None,
-                   progress: bool = False, medoid_candidates: int = 3, positions: str = CROSS_POSITIONS,
-                   cross_lp: float | None = CROSS_LP, cross_order_tol: float | None = CROSS_ORDER_TOL,
-                   **registration: Any) -> Population:
-    """``N`` 4D trees in one tree space (module doc): ``Population(...).fit(sequences)``."""
-    return Population(lambdas, rotation, n_t, n_components, variance, medoid_candidates,
-                      registration, positions, cross_lp, cross_order_tol).fit(sequences, progress)
+                   rotation: str = "none", n_t: int = DEFAULT_NT, variance: float = 0.99,
+                   n_components: int | None = None, progress: bool = False, medoid_candidates: int = 3,
+                   registration: RegistrationSettings | None = None, cross: CrossSettings | None = None
+                   ) -> Population:
+    """``N`` 4D trees in one tree space (module doc): ``Population(...).fit(sequences)``.
+
+    Example:
+        >>> from torch4dtree.data import synthetic_plant
+        >>> plants = [synthetic_plant("maize", i, n_frames=3, T=8).sequence for i in range(2)]
+        >>> fit_population(plants, n_t=4, medoid_candidates=1).trajectories.shape[:2]
+        torch.Size([2, 4])
+    """
+    return Population(lambdas, rotation, n_t, n_components, variance, medoid_candidates, registration,
+                      cross).fit(sequences, progress)

@@ -1,4 +1,4 @@
-"""Temporal registration of trajectories in R^k and 4D geodesics (SPEC §5).
+"""Temporal registration of trajectories in R^k and 4D geodesics (docs/method.md §5).
 
 A 4D tree is ``(alpha(0), q)``: the start point of its trajectory ``alpha (n_t, k)`` and the trajectory's
 SRVF ``q (n_t - 1, k)`` (:mod:`.trajectory`). The time warp ``xi`` of the moving trajectory acts on its
@@ -23,18 +23,17 @@ from torch import Tensor
 from ..curves.refinement import refine_on_finer
 from ..curves.register import dp_settings, dp_warp, pick_backend, register_numba
 from ..curves.srvf import interpolate_curve, inverse_srvf, srvf, srvf_sq_distance, uniform_grid
+from ..settings import TEMPORAL_NEIGHBOURHOOD, TEMPORAL_REFINE
 
 __all__ = ["TemporalRegistration", "geodesic4d", "register_trajectories", "trajectory_distance", "time_warp_trajectory"]
 
-# DP settings chosen by measurement (bench/temporal.py; 300 smooth random trajectories in R^10 at n_t = 32
-# against copies warped by random_warp, strength 1 / 1.5). The lattice alone is coarse at n_t = 32: slopes up
-# to 4 leave a mean absolute warp error of 0.0095 / 0.018 (max 0.056 / 0.11), slopes up to 6 0.0064 / 0.0098
-# at twice the cost. Gauss-Newton refinement off the lattice brings every setting to 0.0005 / 0.0007 (max
-# 0.0018 / 0.0020 with slopes up to 4; 0.0057 with 3), at least as low a distance as the true warp's on 98.7 %
-# of pairs. Stronger warps (strength 2-2.5) still had tails with 8 steps (max 0.03-0.065), none with 16
-# (max 0.008), which cost about the same (the DP dominates).
-NEIGHBOURHOOD = 4
-REFINE = 16
+# The DP defaults (settings.TEMPORAL_NEIGHBOURHOOD, TEMPORAL_REFINE), measured with bench/temporal.py (300 smooth random
+# trajectories in R^10 at n_t = 32 against copies warped by random_warp, strength 1 / 1.5). The lattice alone is coarse
+# at n_t = 32: slopes up to 4 leave a mean absolute warp error of 0.0095 / 0.018 (max 0.056 / 0.11), slopes up to 6
+# 0.0064 / 0.0098 at twice the cost. Gauss-Newton refinement off the lattice brings every setting to 0.0005 / 0.0007
+# (max 0.0018 / 0.0020 with slopes up to 4; 0.0057 with 3), at least as low a distance as the true warp's on 98.7 % of
+# pairs. Stronger warps (strength 2-2.5) still had tails with 8 steps (max 0.03-0.065), none with 16 (max 0.008), which
+# cost about the same (the DP dominates).
 # A moving trajectory given finer than the n_t grid (trajectory.fine_size): its n_t samples' polyline cuts the corners
 # its frames make between grid times, a time-warped copy of it cuts other corners, and no warp of the samples brings
 # it back: on the Pheno4D warped copies (.mat, n_t = 32, Table 3 (b)) the best warp of the samples (converged
@@ -45,23 +44,6 @@ REFINE = 16
 # reading is kept there (the lower distance wins), so no pair registers worse than on the samples alone.
 FINE_REFINE = 8
 BAND_NEIGHBOURHOOD = 5  # steps of the banded DPs (only with band=...): dp_warp's default
-# register4d's time_weight (register_trajectories' default is 0: the plain rate-invariant distance, with which the 4D
-# mean and PCA are defined; as that default it breaks tests/test_model.py's mean of two trajectories = their midpoint).
-# With a weight, the warp is searched twice: on the trajectories as they are, then (DP and refinement again) with a
-# time coordinate ``c t`` appended to both, ``c = TIME_WEIGHT x rho x`` their mean length in R^k, ``rho =
-# sqrt(E_plain / E_identity)`` the share of the SRVF distance the plain warp leaves. The time coordinate makes the SRVF
-# energy grow as xi departs from the identity: a penalty on warping that scales with the trajectories (unitless) and
-# with how far they are from being time warps of each other (rho ~ 0 for a time-warped copy, registered as without it).
-# Why: two plants never trace the same curve (organs start at other stages, another plastochron, a side shoot more),
-# and the plain energy's minimum fits those differences with steep jumps of xi. On synthetic plants with known clocks
-# (`evaluate --sections truth`, 6 plants x 10 frames, 3 pairs per kind, seeds 0 and 1; register4d's trajectories and a
-# ground-truth-label layout) the plain energy at the true warp is above the recovered warp's on 36 of 36 pairs: the
-# search does not miss, the objective's minimum is elsewhere. Recovered clocks' mean error on register4d's
-# trajectories, seeds 0 + 1, tomato / bean / maize: plain 0.038 / 0.039 / 0.030, weight 1: 0.027 / 0.025 / 0.026
-# (1.5: 0.028 / 0.023 / 0.021; 2: 0.032 / 0.028 / 0.018; a fixed, non-adaptive weight 1: 0.028 / 0.024 / 0.026, but
-# then Pheno4D's time-warped copies lose only 90 % of their distance, not 99.9 %). Not free: trajectories that differ
-# AND are strongly warped are pulled toward the identity (benchmarks/README, "Growth clocks").
-TIME_WEIGHT = 1.0
 _UP = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)  # the kernel's vertical axis (unused without rotation)
 
 
@@ -125,7 +107,7 @@ def trajectory_distance(alpha_ref: Tensor, alpha_mov: Tensor) -> Tensor:
 
 def _with_time(ref: Tensor, fine: Tensor, weight: Tensor) -> tuple[Tensor, Tensor]:
     """``(B, n_t, k)``, ``(B, m, k)`` -> both with a time coordinate ``c linspace(0, 1)`` appended, ``c = weight (B,)``
-    x the mean of their polyline lengths (per pair; :data:`TIME_WEIGHT`)."""
+    x the mean of their polyline lengths (per pair; :data:`~torch4dtree.settings.TIME_WEIGHT`)."""
     def length(x: Tensor) -> Tensor:
         return torch.diff(x, dim=1).norm(dim=-1).sum(1)
 
@@ -172,8 +154,8 @@ def _registered(fine: Tensor, mov: Tensor, warp: Tensor, finer: Tensor | None) -
     return torch.where(finer[:, None, None], interpolate_curve(fine, warp), interpolate_curve(mov, warp))
 
 
-def register_trajectories(alpha_ref: Tensor, alpha_mov: Tensor, neighbourhood: int = NEIGHBOURHOOD,
-                          refine: int = REFINE, band: int | None = None, coarse: int | None = None,
+def register_trajectories(alpha_ref: Tensor, alpha_mov: Tensor, neighbourhood: int = TEMPORAL_NEIGHBOURHOOD,
+                          refine: int = TEMPORAL_REFINE, band: int | None = None, coarse: int | None = None,
                           backend: str = "auto", time_weight: float = 0.0) -> TemporalRegistration:
     """Optimal time warps of ``alpha_mov`` onto ``alpha_ref``, batched over pairs.
 
@@ -192,17 +174,25 @@ def register_trajectories(alpha_ref: Tensor, alpha_mov: Tensor, neighbourhood: i
             of time at ``n_t <= 64`` (module constants); the refinement moves the warp off the lattice, so
             it is not limited to the lattice's slopes. For ``n_t`` in the hundreds, a band (e.g. ``band=4,
             coarse=16``) keeps the DP's cost linear.
-        time_weight: ``0`` (default): the warp minimises the 4D distance (the rate-invariant distance of SPEC §5,
-            what the 4D mean and PCA need). ``> 0``: after that search, the warp is searched again on both
-            trajectories with a time coordinate ``c t`` appended, ``c = time_weight x rho x`` their mean length,
-            ``rho`` the share of the distance the first warp left (a penalty on warping for trajectories that are
-            not time warps of each other, such as two plants' growth: :data:`TIME_WEIGHT`, which
-            :func:`~torch4dtree.temporal.register4d` uses). The distances returned are the plain 4D distance at
-            the warp returned either way.
+        time_weight: ``0`` (default): the warp minimises the 4D distance (the rate-invariant distance of docs/method.md
+            §5, what the 4D mean and PCA need). ``> 0``: after that search, the warp is searched again on both
+            trajectories with a time coordinate ``c t`` appended, ``c = time_weight x rho x`` their mean length, ``rho``
+            the share of the distance the first warp left (a penalty on warping for trajectories that are not time warps
+            of each other, such as two plants' growth: :data:`~torch4dtree.settings.TIME_WEIGHT`, which
+            :func:`~torch4dtree.temporal.register4d` uses). The distances returned are the plain 4D distance at the warp
+            returned either way.
 
     Returns:
         :class:`TemporalRegistration`; ``distance <= distance_before`` always (the identity warp is kept
         when nothing better is found).
+
+    Example:
+        >>> t = torch.linspace(0, 1, 16, dtype=torch.float64)[:, None]
+        >>> ref = torch.cat([t, torch.sin(3 * t)], 1)
+        >>> mov = torch.cat([t ** 2, torch.sin(3 * t ** 2)], 1)  # ref at the warped times t^2
+        >>> r = register_trajectories(ref, mov)
+        >>> bool(r.distance < 0.1 * r.distance_before)
+        True
     """
     factor = _check_trajectories(alpha_ref, alpha_mov)
     if not (isinstance(time_weight, (int, float)) and 0 <= time_weight < float("inf")):
@@ -263,7 +253,8 @@ def time_warp_trajectory(alpha: Tensor, xi: Tensor) -> Tensor:
 
 
 def geodesic4d(start1: Tensor, q1: Tensor, start2: Tensor, q2: Tensor, steps: int = 10) -> Tensor:
-    """Trajectories along the straight line from ``(start1, q1)`` to ``(start2, q2)`` (SPEC §5's 4D geodesic).
+    """Trajectories along the straight line from ``(start1, q1)`` to ``(start2, q2)`` (the 4D geodesic,
+    docs/method.md §5).
 
     Args:
         start1, start2: ``(..., k)`` start points ``alpha(0)``.
@@ -275,6 +266,13 @@ def geodesic4d(start1: Tensor, q1: Tensor, start2: Tensor, q2: Tensor, steps: in
     Returns:
         ``(steps, ..., n_t, k)``: ``inverse_srvf((1 - tau) q1 + tau q2, (1 - tau) start1 + tau start2)``; the
         first is trajectory 1, the last trajectory 2 (as registered).
+
+    Example:
+        >>> from torch4dtree.temporal import trajectory_srvf
+        >>> t = torch.linspace(0, 1, 8, dtype=torch.float64)[:, None]
+        >>> (s1, q1), (s2, q2) = trajectory_srvf(torch.cat([t, t], 1)), trajectory_srvf(torch.cat([t, 2 * t], 1))
+        >>> geodesic4d(s1, q1, s2, q2, steps=3).shape
+        torch.Size([3, 8, 2])
     """
     if not isinstance(steps, int) or steps < 2:
         raise ValueError(f"steps must be an integer >= 2, got {steps!r}")

@@ -1,4 +1,4 @@
-"""Spatiotemporal registration of two 4D trees (SPEC §5, paper §4.2) and their 4D geodesic.
+"""Spatiotemporal registration of two 4D trees (docs/method.md §5, paper §4.2) and their 4D geodesic.
 
 The pipeline, for 4D trees ``A`` (reference) and ``B`` (moving):
 
@@ -6,18 +6,18 @@ The pipeline, for 4D trees ``A`` (reference) and ``B`` (moving):
    being one branch identity over the whole sequence.
 2. **Cross-sequence spatial registration**: ``B``'s representative tree (every slot's branch from the latest
    frame holding it, in the sequence's own parameterisation) is registered onto ``A``'s (with the cross-sequence
-   settings ``positions`` / ``cross_lp``, :data:`CROSS_POSITIONS` / :data:`CROSS_LP`). The correspondence,
+   settings, :class:`~torch4dtree.settings.CrossSettings`). The correspondence,
    warps and rotation found are applied to *every* frame of ``B``, so identities stay consistent over time; both
    4D trees are written into one union layout (``A``'s slots, then ``B``'s unmatched ones). The correspondence
    and warps are chosen on one tree while the 4D distance runs over all times, so three candidates are scored
    by the 4D distance and the smallest is kept (``spatial_candidate``): the registration as found
    (``"registered"``), its correspondence with identity warps (``"correspondence"``: a warp fitted to a
-   branch's latest shape can misfit its younger frames; it was the smallest on 7 of 16 Pheno4D pairs), and the
-   index-order correspondence (``"index_order"``: ``B``'s slots matched to ``A``'s by order of ``s``, identity
-   warps; what *before* is measured with, so the spatial stage never ends above it). Where neither registered
+   branch's latest shape can misfit its younger frames), and the index-order correspondence (``"index_order"``:
+   ``B``'s slots matched to ``A``'s by order of ``s``, identity warps; the distance *before* registration is
+   this one's, so the spatial stage never ends above it). Where neither registered
    candidate beats index order, the representatives are registered again with a wider rotation search
-   (``fallback_rotation``, default ``"vertical"``) and its two candidates (``"registered_vertical"``,
-   ``"correspondence_vertical"``) join: 2 of 16 Pheno4D pairs at the default ``cross_lp``, which it lowers.
+   (``CrossSettings.fallback_rotation``, default ``"vertical"``) and its two candidates
+   (``"registered_vertical"``, ``"correspondence_vertical"``) join.
    Last, the registration's correspondences are tried again with the warps that minimise the 4D distance itself
    (:func:`fourd_warps`, one elastic matching per slot over all times at once; ``"correspondence_4d"``...), and,
    where still no registered candidate beats index order, the index order too (``"index_order_4d"``): where the
@@ -48,51 +48,28 @@ from torch import Tensor
 from ..curves.register import dp_warp
 from ..curves.srvf import interpolate_curve, inverse_srvf, srvf, warp_srvf
 from ..curves.warps import compose_warps
+from ..settings import (
+    DEFAULT_NT,
+    ROTATIONS,
+    TIME_WEIGHT,
+    CrossSettings,
+    RegistrationSettings,
+    TemporalSettings,
+    check_at_least,
+    check_choice,
+    check_lambdas,
+)
 from ..space.pca import TreePCA
 from ..trees.aligned import AlignedTrees
-from ..trees.registration import ORDER_TOL, POSITIONS, effective_lambdas, index_order_matches, register_trees
+from ..trees.registration import effective_lambdas, index_order_matches
 from ..trees.structures import Trees, TreeSequence
-from .registration import TIME_WEIGHT, TemporalRegistration, geodesic4d, register_trajectories, trajectory_distance
+from .registration import TemporalRegistration, geodesic4d, trajectory_distance
 from .trajectory import fine_size, resample_trajectory, trajectory_srvf
-from .within import AlignedSequence, _inverse_at, register_sequence
+from .within import AlignedSequence, inverse_at, register_sequence
 
-__all__ = ["CROSS_LP", "CROSS_ORDER_TOL", "CROSS_POSITIONS", "SpatiotemporalRegistration", "check_cross_settings",
-           "combine_many", "combine_sequences", "fourd_warps", "grow_union", "open_slots",
-           "place_sequence", "register4d", "representative_tree"]
+__all__ = ["SpatiotemporalRegistration", "combine_many", "combine_sequences", "fourd_warps", "grow_union",
+           "layout_trajectories", "open_slots", "place_sequence", "register4d", "representative_tree"]
 
-DEFAULT_NT = 32
-# the wider search of the spatial stage where the first did not beat index order (2 of 16 Pheno4D pairs; ~10x the
-# cost of rotation="none" on tomato, paid only there)
-FALLBACK_ROTATION = "vertical"
-# The cross-sequence registrations' settings (register4d's spatial stage, Population): how a matched child's place
-# on its parent is compared (trees.registration.register_to_reference's ``positions``), their relative lp (None: the
-# space's lambdas[2]; only the registration uses it, the 4D distance keeps the space's metric) and ``order_tol``
-# (None: a node's children matched in any order; a number: in their order along the parent, siblings closer than
-# that excepted). Plants of a kind carry their organs in one order up the stem (leaf k below leaf k + 1), so the
-# default keeps that order and compares children by node rank, the setting that identified organs best across
-# synthetic plants of the same calendar day (benchmarks/README, "Bean across plants").
-# Measured on every pair (15) of the 9 synthetic sets of 6 plants x 10 frames (`synth --seed 0/1/2`, not used to
-# choose the setting), register4d's kept slots the same organ (precision) warped lp 10 -> rank lp 12 ordered: bean
-# 0.61 / 0.81 / 0.80 -> 0.91 / 0.94 / 0.93, tomato 0.93 / 0.89 / 0.90 -> 1.00 / 0.90 / 0.97, maize 1.00 / 0.89 /
-# 0.99 -> 1.00 / 1.00 / 1.00; growth-clock error (mean of the 135 pairs) 0.036 -> 0.031, the organ-truth oracle's
-# 0.031. The stage still lowers every Pheno4D 4D pair (37 / 37, mostly through the 4D warps), by less: a
-# correspondence that keeps the organs' order is a constrained optimum of the 4D distance (after / before, .mat
-# tomato 0.960 -> 0.980, maize 0.927 -> 0.965). Warped lp 10 (before, chosen on 3 pairs a set) matched bean leaves
-# across the stem (leaf 3 to leaf 6) on 5 of 15 pairs of one set.
-CROSS_POSITIONS = "rank"
-CROSS_LP: float | None = 12.0
-CROSS_ORDER_TOL: float | None = ORDER_TOL
-
-
-def check_cross_settings(positions: str, cross_lp: float | None, order_tol: float | None = None) -> None:
-    """Raise ``ValueError`` for an unknown ``positions`` or a ``cross_lp`` / ``order_tol`` that is not ``None`` or
-    a finite number ``>= 0``."""
-    if positions not in POSITIONS:
-        raise ValueError(f"unknown positions {positions!r}; expected one of {POSITIONS}")
-    for name, value in (("cross_lp", cross_lp), ("cross_order_tol", order_tol)):
-        if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))
-                                  or not 0 <= value < float("inf")):
-            raise ValueError(f"{name} must be None or a finite number >= 0, got {value!r}")
 
 
 def representative_tree(seq: AlignedSequence) -> Trees:
@@ -131,7 +108,7 @@ def place_sequence(mov: AlignedSequence, slot_of: Sequence[int], num_slots: int,
     if S_m > 1:  # every frame's child slots at once: (n_m * (S_m - 1),) parameters through their parents' warps
         parents = torch.as_tensor(mov_parent[1:], dtype=torch.long, device=dev)
         warps = g[parents].repeat(n_m, 1)
-        sm[:, 1:] = _inverse_at(warps, ma.s[:, 1:].reshape(-1)).reshape(n_m, S_m - 1)
+        sm[:, 1:] = inverse_at(warps, ma.s[:, 1:].reshape(-1)).reshape(n_m, S_m - 1)
     s[:, idx] = sm
     present[:, idx] = ma.present
     source[:, idx] = torch.arange(S_m, device=dev)
@@ -330,7 +307,7 @@ def _split_trajectories(coeffs: Tensor, n_ref: int, ref_times: Tensor, mov_times
     return alpha_ref, alpha_mov
 
 
-def _trajectories(layout: AlignedTrees, n_ref: int, ref_times: Tensor, mov_times: Tensor, n_t: int,
+def layout_trajectories(layout: AlignedTrees, n_ref: int, ref_times: Tensor, mov_times: Tensor, n_t: int,
                   n_components: int | None, mov_samples: int | None = None) -> tuple[TreePCA, Tensor, Tensor]:
     """PCA of ``layout`` and the trajectories ``alpha_ref (n_t, k)``, ``alpha_mov (mov_samples, k)`` (default
     ``n_t``; :func:`~.trajectory.fine_size` for the temporal registration)."""
@@ -342,7 +319,8 @@ def _trajectories(layout: AlignedTrees, n_ref: int, ref_times: Tensor, mov_times
 
 def _candidate_distance(layout: AlignedTrees, n_ref: int, ref_times: Tensor, mov_times: Tensor, n_t: int,
                         n_components: int | None, mov_samples: int) -> float:
-    """The 4D distance (identity time warp) of a spatial candidate's layout, as :func:`_trajectories` would give it.
+    """The 4D distance (identity time warp) of a spatial candidate's layout, as :func:`layout_trajectories` gives
+    it.
 
     With all components (the default) the coefficients are the centred features in an orthonormal basis of their
     span, and the 4D distance only sees Euclidean geometry, so any such basis gives it: a QR factorisation
@@ -350,7 +328,7 @@ def _candidate_distance(layout: AlignedTrees, n_ref: int, ref_times: Tensor, mov
     fitted, for the candidate kept, instead of three).
     """
     if n_components is not None:
-        _, a, b = _trajectories(layout, n_ref, ref_times, mov_times, n_t, n_components, mov_samples)
+        _, a, b = layout_trajectories(layout, n_ref, ref_times, mov_times, n_t, n_components, mov_samples)
     else:
         X = layout.features().detach()
         coeffs = torch.linalg.qr((X - X.mean(0)).T)[1].T
@@ -401,10 +379,9 @@ def fourd_warps(layout: AlignedTrees, n_ref: int, ref_times: Tensor, mov_times: 
 
 def register4d(reference: TreeSequence | AlignedSequence, moving: TreeSequence | AlignedSequence,
                lambdas: Sequence[float] = (1.0, 1.0, 1.0), rotation: str = "none", n_t: int = DEFAULT_NT,
-               n_components: int | None = None, progress: bool = False,
-               fallback_rotation: str | None = FALLBACK_ROTATION, positions: str = CROSS_POSITIONS,
-               cross_lp: float | None = CROSS_LP, cross_order_tol: float | None = CROSS_ORDER_TOL,
-               time_weight: float = TIME_WEIGHT, **registration_kwargs: object) -> SpatiotemporalRegistration:
+               n_components: int | None = None, progress: bool = False, time_weight: float = TIME_WEIGHT,
+               registration: RegistrationSettings | None = None, cross: CrossSettings | None = None,
+               temporal: TemporalSettings | None = None) -> SpatiotemporalRegistration:
     """Register the 4D tree ``moving`` (``B``) onto ``reference`` (``A``) in space and time (module doc).
 
     Args:
@@ -413,34 +390,36 @@ def register4d(reference: TreeSequence | AlignedSequence, moving: TreeSequence |
         lambdas: ``(lm, ls, lp)`` of the cross-sequence registration and of the 4D distance; ``lp`` is relative to
             ``A``'s main-branch length (as in :func:`torch4dtree.trees.register_to_reference`). A
             :class:`TreeSequence` is registered within itself with :func:`register_sequence`'s own weights.
-        rotation: global rotation of ``B`` onto ``A`` (``"none"``, ``"vertical"``, ``"so3"``).
+        rotation: global rotation of ``B`` onto ``A`` (:data:`~torch4dtree.settings.ROTATIONS`).
         n_t: common time samples of the trajectories (finer than the frame count).
         n_components: PCA components; default all (``frames - 1``), so nothing of the shapes is lost.
         progress: progress bars for the within-sequence registrations.
-        fallback_rotation: where no candidate of the registration with ``rotation`` beats the index-order
-            correspondence, the representatives are registered again with this rotation search and its candidates
-            join (module doc); ``None`` turns it off.
-        positions: how the cross-sequence registration compares matched children's places (``"warped"``,
-            ``"arclength"`` or ``"rank"``, :func:`~torch4dtree.trees.register_to_reference`); default
-            :data:`CROSS_POSITIONS`. The within-sequence registrations keep their own.
-        cross_lp: the cross-sequence registration's relative ``lp`` (``None``: ``lambdas[2]``); the 4D distance
-            keeps ``lambdas``. Default :data:`CROSS_LP`.
-        cross_order_tol: the cross-sequence registration's ``order_tol`` (:func:`~torch4dtree.trees.register_trees`:
-            a node's children matched in their order along the parent, siblings within ``cross_order_tol`` of each
-            other in any order); ``None``: any order (SPEC §3). Default :data:`CROSS_ORDER_TOL` (module constants).
-        time_weight: the temporal registration's penalty on warping (:func:`register_trajectories`); default
-            :data:`~torch4dtree.temporal.registration.TIME_WEIGHT` (two plants are not time warps of each other: their
-            recovered growth clocks are closer to the true ones with it); ``0``: the warp minimising the 4D distance.
-        registration_kwargs: passed to the tree registrations (DP settings, ``up``...); an ``order_tol`` among them
-            reaches only the within-sequence ones (the cross-sequence one takes ``cross_order_tol``).
+        time_weight: the temporal registration's penalty on warping (:func:`register_trajectories`; two plants are
+            not time warps of each other); ``0``: the warp minimising the 4D distance.
+        registration: how every tree registration searches (within- and cross-sequence); default
+            :class:`~torch4dtree.settings.RegistrationSettings`'s.
+        cross: the cross-sequence registration's children's positions, relative ``lp``, order tolerance and
+            fallback rotation (:class:`~torch4dtree.settings.CrossSettings`); the within-sequence registrations
+            keep :func:`register_sequence`'s own, the 4D distance keeps ``lambdas``.
+        temporal: the time-warp DP (:class:`~torch4dtree.settings.TemporalSettings`).
 
     Returns:
         :class:`SpatiotemporalRegistration`.
+
+    Example:
+        >>> from torch4dtree.data import synthetic_plant
+        >>> a = synthetic_plant("maize", 0, n_frames=3, T=8).sequence
+        >>> b = synthetic_plant("maize", 1, n_frames=3, T=8).sequence
+        >>> r = register4d(a, b, n_t=4)
+        >>> bool(r.distance_after_temporal <= r.distance_before)
+        True
     """
-    if n_t < 2:
-        raise ValueError(f"n_t must be at least 2, got {n_t}")
-    check_cross_settings(positions, cross_lp, cross_order_tol)
-    cross_kwargs = {**registration_kwargs, "order_tol": cross_order_tol}
+    check_lambdas(lambdas)
+    check_choice("rotation", rotation, ROTATIONS)
+    n_t = check_at_least("n_t", n_t, 2)
+    search = registration or RegistrationSettings()
+    cross = cross or CrossSettings()
+    temporal = temporal or TemporalSettings()
     seconds: dict[str, float] = {}
     t0 = time.perf_counter()
     # one metric for the whole 4D space: lp relative to the reference's last frame (or its representative)
@@ -450,7 +429,7 @@ def register4d(reference: TreeSequence | AlignedSequence, moving: TreeSequence |
     if ref_tree is None:
         raise TypeError(f"expected a TreeSequence or an AlignedSequence, got {type(reference).__name__}")
     lam = effective_lambdas(lambdas, ref_tree)
-    lam_reg = lam if cross_lp is None else effective_lambdas((*lambdas[:2], cross_lp), ref_tree)
+    lam_reg = lam if cross.lp is None else effective_lambdas((*lambdas[:2], cross.lp), ref_tree)
     seqs = []
     for x in (reference, moving):
         if isinstance(x, AlignedSequence):
@@ -459,7 +438,7 @@ def register4d(reference: TreeSequence | AlignedSequence, moving: TreeSequence |
             if len(x) < 2:
                 raise ValueError(f"{x.name or 'a 4D tree'} has {len(x)} frame(s); a 4D tree needs at least 2")
             # identities over time with register_sequence's own weights (as Population does); lam from here on
-            seqs.append(register_sequence(x.to(torch.float64), progress=progress, **registration_kwargs))
+            seqs.append(register_sequence(x.to(torch.float64), progress=progress, registration=search))
         else:
             raise TypeError(f"expected a TreeSequence or an AlignedSequence, got {type(x).__name__}")
     A, B = seqs
@@ -491,18 +470,19 @@ def register4d(reference: TreeSequence | AlignedSequence, moving: TreeSequence |
             options.append(score(f"{c.name}_4d", c.matches, leaves, c.rotation))
         return min(options, key=lambda x: x.distance)
 
-    # index order first: "before" is measured with it
+    # index order first: the distance before registration is its
     index_matches = index_order_matches(rep_b, rep_a)
     candidates = [score("index_order", index_matches, ident, eye)]
     searches = [rotation]
-    if fallback_rotation not in (None, rotation) and not (fallback_rotation == "vertical" and rep_b.dim != 3):
-        searches.append(fallback_rotation)
+    fallback = cross.fallback_rotation
+    if fallback is not None and fallback != rotation and not (fallback == "vertical" and rep_b.dim != 3):
+        searches.append(fallback)
     for k, rot in enumerate(searches):
         if k and min(c.distance for c in candidates[1:]) < candidates[0].distance:
             break  # the fallback search only runs where the first did not beat index order
         # one way (symmetric=False), as the weights are A's: B's representative onto A's
-        reg = register_trees(rep_b, rep_a, lam_reg, rot, lp_relative=False, symmetric=False, positions=positions,
-                             **cross_kwargs)
+        reg = search.register(rep_b, rep_a, lam_reg, rot, positions=cross.positions, order_tol=cross.order_tol,
+                              lp_relative=False, symmetric=False)[0]
         R = reg.rotation.to(torch.float64)
         suffix = "" if k == 0 else f"_{rot}"
         candidates += [score(f"registered{suffix}", reg.matches, reg.gamma.to(torch.float64), R),
@@ -519,18 +499,18 @@ def register4d(reference: TreeSequence | AlignedSequence, moving: TreeSequence |
     t0 = time.perf_counter()
     # ties go to the registrations (in search order), index order last
     spatial_candidate, matches, after = min(candidates[1:] + candidates[:1], key=lambda c: c.distance)[:3]
-    pca, alpha_a, alpha_b = _trajectories(after, n_ref, A.times, B.times, n_t, n_components, fine)
+    pca, alpha_a, alpha_b = layout_trajectories(after, n_ref, A.times, B.times, n_t, n_components, fine)
     seconds["tree_space"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    temporal = register_trajectories(alpha_a, alpha_b, time_weight=time_weight)
-    d_spatial = float(temporal.distance_before)
+    time_reg = temporal.register(alpha_a, alpha_b, time_weight=time_weight)
+    d_spatial = float(time_reg.distance_before)
     seconds["temporal"] = time.perf_counter() - t0
     times = torch.linspace(0, 1, n_t, dtype=alpha_a.dtype)
     span = (float(A.times[0]), float(A.times[-1]))
     alpha_b_grid = alpha_b[::(fine - 1) // (n_t - 1)]
     return SpatiotemporalRegistration(
-        d_before, d_spatial, float(temporal.distance), temporal.warp, times, alpha_a, alpha_b_grid,
-        temporal.registered, pca, after, (A, B), matches, temporal, span, seconds,
+        d_before, d_spatial, float(time_reg.distance), time_reg.warp, times, alpha_a, alpha_b_grid,
+        time_reg.registered, pca, after, (A, B), matches, time_reg, span, seconds,
         spatial_candidate == "index_order", spatial_candidate, alpha_b,
-        {"positions": positions, "lambdas": tuple(lam_reg), "order_tol": cross_order_tol})
+        {"positions": cross.positions, "lambdas": tuple(lam_reg), "order_tol": cross.order_tol})
 

@@ -1,4 +1,4 @@
-"""Trajectories in R^k (SPEC §5): a 4D tree as a curve of shape coordinates over normalised time.
+"""Trajectories in R^k (docs/method.md §5): a 4D tree as a curve of shape coordinates over normalised time.
 
 A trajectory is ``alpha (..., n_t, k)``: the shape coordinates (e.g. tree-PCA coefficients) of a 4D
 tree at ``n_t`` equally spaced normalised times ``linspace(0, 1, n_t)``. Its SRVF representation is
@@ -44,6 +44,11 @@ def resample_trajectory(coeffs: Tensor, times: Tensor, n_t: int = 32) -> Tensor:
     Returns:
         ``(n_t, k)`` or ``(B, n_t, k)``: the piecewise-linear trajectory through the frames evaluated at
         ``linspace(0, 1, n_t)``. Differentiable in ``coeffs``.
+
+    Example:
+        >>> coeffs = torch.tensor([[0.0, 0.0], [1.0, 2.0], [2.0, 2.0]], dtype=torch.float64)
+        >>> resample_trajectory(coeffs, torch.tensor([0.0, 1.0, 4.0]), n_t=5)[:, 0].tolist()
+        [0.0, 1.0, 1.3333333333333333, 1.6666666666666665, 2.0]
     """
     if not isinstance(n_t, int) or n_t < 2:
         raise ValueError(f"n_t must be an integer >= 2, got {n_t!r}")
@@ -86,6 +91,10 @@ def fine_size(n_t: int, times: Tensor | None = None, oversample: int = OVERSAMPL
     :func:`~torch4dtree.temporal.register_trajectories` can time-warp without cutting the corners its frames make
     between the ``n_t`` grid times. ``F = oversample``, doubled (up to ``max_oversample``) while two of ``times``
     (normalised to ``[0, 1]``) are closer than two fine steps: the fine polyline must hold every frame's corner.
+
+    Example:
+        >>> fine_size(32)
+        249
     """
     if not isinstance(n_t, int) or n_t < 2:
         raise ValueError(f"n_t must be an integer >= 2, got {n_t!r}")
@@ -102,7 +111,14 @@ def fine_size(n_t: int, times: Tensor | None = None, oversample: int = OVERSAMPL
 
 
 def trajectory_srvf(alpha: Tensor) -> Trajectory:
-    """``alpha (..., n_t, k) -> Trajectory(start (..., k), q (..., n_t - 1, k))`` (any ``k``, any leading dims)."""
+    """``alpha (..., n_t, k) -> Trajectory(start (..., k), q (..., n_t - 1, k))`` (any ``k``, any leading dims).
+
+    Example:
+        >>> alpha = torch.rand(2, 8, 3, dtype=torch.float64)
+        >>> start, q = trajectory_srvf(alpha)
+        >>> torch.allclose(trajectory_from_srvf(start, q), alpha)
+        True
+    """
     if alpha.dim() < 2 or alpha.shape[-2] < 2:
         raise ValueError(f"a trajectory must be (..., n_t >= 2, k), got {tuple(alpha.shape)}")
     return Trajectory(alpha[..., 0, :], srvf(alpha))

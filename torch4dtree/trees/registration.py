@@ -29,7 +29,7 @@ from torch import Tensor
 
 from ..curves.rotation import check_rotation_mode
 from ..curves.srvf import srvf, warp_srvf
-from ..settings import DEFAULT_POSITIONS, ORDER_TOL, POSITIONS, check_choice
+from ..settings import DEFAULT_POSITIONS, ORDER_TOL, POSITIONS, check_choice, check_lambdas
 from .aligned import AlignedTrees, Lambdas
 from .pairwise import pairwise_distances
 from .prepare import PreparedTree, child_positions, prepare_tree
@@ -195,20 +195,6 @@ def _pair_distance(aligned: AlignedTrees, positions: Tensor | None = None) -> Te
     return torch.where(e > 0, e.clamp_min(MIN_SQ_DISTANCE).sqrt(), torch.zeros_like(e))
 
 
-
-
-def check_lambdas(lambdas: Sequence[float]) -> Lambdas:
-    """``(lm, ls, lp)`` as floats, or a ``ValueError`` unless ``lm > 0``, ``ls > 0``, ``lp >= 0``, all finite
-    (docs/method.md §3's order: main-branch shape, subtrees, bifurcation positions).
-
-    Example:
-        >>> check_lambdas([1, 1, 0])
-        (1.0, 1.0, 0.0)
-    """
-    lam = tuple(float(x) for x in lambdas)
-    if len(lam) != 3 or any(not math.isfinite(x) or x < 0 for x in lam) or lam[0] <= 0 or lam[1] <= 0:
-        raise ValueError(f"lambdas must be (lm > 0, ls > 0, lp >= 0) (docs/method.md §3's order), got {tuple(lambdas)}")
-    return lam  # type: ignore[return-value]
 
 
 # with lp_relative, lp = 1 weighs bifurcation positions like RELATIVE_LP_SCALE x the pair's main-branch length: the

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import json
 
 import numpy as np
@@ -12,6 +13,7 @@ from conftest import pheno4d
 
 from torch4dtree.cli import main
 from torch4dtree.data import synthetic_dataset, synthetic_plant, write_dataset
+from torch4dtree.settings import CrossSettings
 from torch4dtree.temporal import register4d
 from torch4dtree.trees.structures import TreeSequence
 
@@ -78,11 +80,16 @@ def test_spatial_stage_keeps_the_smallest_candidate():
     layouts (the registration's warps, its correspondence with identity warps, index order, and the last two with
     the 4D-distance warps of fourd_warps on every matched slot or on the childless ones)."""
     from torch4dtree.temporal.registration import register_trajectories
-    from torch4dtree.temporal.spatiotemporal import _trajectories, combine_sequences, fourd_warps, representative_tree
+    from torch4dtree.temporal.spatiotemporal import (
+        combine_sequences,
+        fourd_warps,
+        layout_trajectories,
+        representative_tree,
+    )
     from torch4dtree.trees.registration import effective_lambdas, index_order_matches, register_trees
 
     a, b = (p.sequence for p in synthetic_dataset("bean", 2, 3, n_frames=5, T=16, dtype=torch.float64))
-    r = register4d(a, b, n_t=16, fallback_rotation=None)
+    r = register4d(a, b, n_t=16, cross=CrossSettings(fallback_rotation=None))
     A, B = r.sequences
     rep_a, rep_b = representative_tree(A), representative_tree(B)
     lam = effective_lambdas((1.0, 1.0, 1.0), a.frames[len(a) - 1])
@@ -96,7 +103,7 @@ def test_spatial_stage_keeps_the_smallest_candidate():
 
     def distance(matches, gamma):
         layout = combine_sequences(A, B, matches, gamma, eye, lam)
-        _, x, y = _trajectories(layout, len(A), A.times, B.times, 16, None, fine)
+        _, x, y = layout_trajectories(layout, len(A), A.times, B.times, 16, None, fine)
         return layout, float(register_trajectories(x, y).distance_before)
 
     parents = set(B.aligned.slot_parent.tolist())
@@ -157,18 +164,18 @@ def test_spatial_stage_lowers_real_pairs_where_the_first_registration_does_not()
     r = register4d(seqs[1], seqs[3])
     assert r.spatial_candidate.startswith("correspondence")
     assert r.distance_after_spatial < r.distance_before - 1e-3
-    paper = {"cross_lp": None, "positions": "warped", "cross_order_tol": None}
-    plain = register4d(seqs[2], seqs[3], fallback_rotation=None, **paper)
+    paper = CrossSettings(lp=None, positions="warped", order_tol=None)
+    plain = register4d(seqs[2], seqs[3], cross=dataclasses.replace(paper, fallback_rotation=None))
     assert plain.spatial_candidate == "index_order_4d" and not plain.kept_index_order
     assert plain.distance_after_spatial < plain.distance_before - 1e-3
-    r = register4d(seqs[2], seqs[3], **paper)
+    r = register4d(seqs[2], seqs[3], cross=paper)
     assert "_vertical" in r.spatial_candidate
     assert r.distance_after_spatial < plain.distance_after_spatial - 1e-3
     assert r.distance_after_temporal <= r.distance_after_spatial
-    r = register4d(seqs[2], seqs[3], fallback_rotation=None)
+    r = register4d(seqs[2], seqs[3], cross=CrossSettings(fallback_rotation=None))
     assert r.spatial_candidate != "index_order" and r.distance_after_spatial < r.distance_before - 1e-3
     ranked = [register_sequence(raw[n], positions="rank") for n in (1, 2)]
-    r = register4d(*ranked, fallback_rotation=None)
+    r = register4d(*ranked, cross=CrossSettings(fallback_rotation=None))
     assert r.spatial_candidate == "index_order_4d"
     assert r.distance_after_spatial < r.distance_before - 0.1
 

@@ -12,6 +12,7 @@ import torch
 from test_registration import random_tree, transformed_copy
 
 from torch4dtree.curves import srvf, srvf_sq_norm
+from torch4dtree.settings import RegistrationSettings
 from torch4dtree.space import KarcherMean, NotFittedError, SlotLimitError, TreePCA
 from torch4dtree.space.karcher import _Mean, _Registered
 from torch4dtree.trees import AlignedTrees, Trees, register_trees
@@ -115,7 +116,7 @@ def test_energy_never_increases(fitted):
 def test_energy_never_increases_with_a_coarse_registration(population):
     # DP slopes of 1 only: fresh registrations onto a moved mean can miss what the previous round found, and
     # then each tree keeps its previous correspondence (without that fallback the energy rises here)
-    km = fit(population, prune_length=0.02, max_iters=6, tol=0.0, registration={"neighbourhood": 1})
+    km = fit(population, prune_length=0.02, max_iters=6, tol=0.0, registration=RegistrationSettings(neighbourhood=1))
     energies = [h["energy"] for h in km.history]
     assert all(b <= a * (1 + 1e-12) for a, b in zip(energies, energies[1:])), energies
     assert sum(h["kept_previous"] for h in km.history) > 0
@@ -236,12 +237,12 @@ def test_slot_cap():
 
 def test_state_dict_round_trip(tmp_path):
     trees = Trees.cat([small_tree(s) for s in range(3)])
-    km = fit(trees, lambdas=(1.0, 0.5, 2.0), registration={"neighbourhood": 3}, max_iters=3)
+    km = fit(trees, lambdas=(1.0, 0.5, 2.0), registration=RegistrationSettings(neighbourhood=3), max_iters=3)
     torch.save(km.state_dict(), tmp_path / "km.pt")
     km2 = KarcherMean()
     km2.load_state_dict(torch.load(tmp_path / "km.pt", weights_only=True))
     assert km2.lambdas == km.lambdas and km2.lp_relative == km.lp_relative is False  # the effective weights
-    assert km2.registration == {"neighbourhood": 3}
+    assert km2.registration == RegistrationSettings(neighbourhood=3)
     assert str(km2.history) == str(km.history) and km2.n_iter_ == km.n_iter_ and km2.converged_ == km.converged_
     for name, buf in km.named_buffers():
         assert torch.equal(buf, getattr(km2, name)), name
@@ -268,8 +269,10 @@ def test_karcher_errors():
         KarcherMean().transform(A)
     with pytest.raises(ValueError, match="lambdas"):
         KarcherMean(lambdas=(1.0, 0.0, 1.0))
-    with pytest.raises(ValueError, match="unknown registration"):
+    with pytest.raises(TypeError, match="RegistrationSettings"):
         KarcherMean(registration={"max_iter": 3})
+    with pytest.raises(ValueError, match="unknown setting"):
+        RegistrationSettings.from_dict({"max_iter": 3})
     with pytest.raises(ValueError, match="rotation"):
         KarcherMean(rotation="spin")
     with pytest.raises(ValueError, match="init"):

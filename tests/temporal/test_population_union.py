@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import torch
 
+from torch4dtree.settings import CrossSettings
 from torch4dtree.temporal.population import Population
 from torch4dtree.trees.structures import Trees, TreeSequence
 
@@ -41,7 +42,7 @@ def fitted() -> tuple[Population, list[TreeSequence]]:
     # children placed by their fraction of the stem: X sits between L1 and L2 in half of the plants, which shifts
     # L2's node rank by one between the groups; with the default node ranks at lp 12 that mismatch costs more than
     # a second Y slot (6 slots), a property of ranks, not of the union this file tests
-    return Population(positions="warped").fit(seqs), seqs
+    return Population(cross=CrossSettings(positions="warped")).fit(seqs), seqs
 
 
 def test_same_extra_branch_of_two_plants_shares_one_slot(fitted):
@@ -68,7 +69,7 @@ def test_new_plant_lands_in_an_opened_slot(fitted):
 
 def test_union_does_not_depend_on_input_order(fitted):
     pop, seqs = fitted
-    rev = Population(positions="warped").fit(seqs[::-1])
+    rev = Population(cross=CrossSettings(positions="warped")).fit(seqs[::-1])
     assert rev.report_["reference"] == pop.report_["reference"] and rev.report_["slots"] == pop.report_["slots"]
     assert torch.allclose(rev.ref_points, pop.ref_points)
     assert torch.allclose(rev.trajectories.flip(0), pop.trajectories, atol=1e-8)

@@ -17,6 +17,7 @@ from torch4dtree.model import (
     sequence_validity,
     truncated_normal_variance,
 )
+from torch4dtree.settings import ModelSettings
 from torch4dtree.temporal import geodesic4d, register_trajectories, time_warp_trajectory, trajectory_srvf
 
 N_T = 12
@@ -95,7 +96,7 @@ def test_mean_warps_stay_centred() -> None:
     from torch4dtree.model import FourDTreeModel
 
     seqs = [p.sequence for p in synthetic_dataset("tomato", plants=5, seed=0, n_frames=6, T=16)]
-    m = FourDTreeModel(n_t=12).fit(seqs)
+    m = FourDTreeModel(ModelSettings(n_t=12)).fit(seqs)
     warp = m.mean.registered_.warp
     grid = torch.linspace(0, 1, warp.shape[1], dtype=warp.dtype)
     assert float((warp.mean(0) - grid).abs().max()) < 0.1, warp
@@ -133,7 +134,7 @@ def plants() -> list:
 
 @pytest.fixture(scope="module")
 def model(plants: list) -> FourDTreeModel:
-    return FourDTreeModel(n_t=N_T, medoid_candidates=2).fit(plants[:3])
+    return FourDTreeModel(ModelSettings(n_t=N_T, medoid_candidates=2)).fit(plants[:3])
 
 
 def test_model_fit_shapes_and_report(model: FourDTreeModel) -> None:
@@ -152,7 +153,7 @@ def test_model_fit_shapes_and_report(model: FourDTreeModel) -> None:
 
 
 def test_copies_of_one_4d_tree(plants: list) -> None:
-    m = FourDTreeModel(n_t=N_T, medoid_candidates=1).fit([plants[0], plants[0]])
+    m = FourDTreeModel(ModelSettings(n_t=N_T, medoid_candidates=1)).fit([plants[0], plants[0]])
     alpha = m.population.trajectories
     assert torch.allclose(alpha[0], alpha[1], atol=1e-9)
     assert torch.allclose(m.mean.trajectory, alpha[0], atol=1e-9)
@@ -359,7 +360,7 @@ def test_forecast_beats_baselines(kind: str) -> None:
     from torch4dtree.data import synthetic_dataset
 
     seqs = [p.sequence for p in synthetic_dataset(kind, plants=20, seed=3, n_frames=6, T=16)]
-    m = FourDTreeModel(n_t=16).fit(seqs[:7])
+    m = FourDTreeModel(ModelSettings(n_t=16)).fit(seqs[:7])
     errs = {"forecast": 0.0, "last": 0.0, "mean": 0.0}
     for h in seqs[7:]:
         half = len(h) // 2
@@ -429,7 +430,7 @@ def test_samples_are_new_plants_not_copies() -> None:
     from torch4dtree.evaluate.generative import distance_matrix, novelty
 
     seqs = [p.sequence for p in synthetic_dataset("tomato", plants=20, seed=0, n_frames=6, T=16)]
-    m = FourDTreeModel(n_t=16).fit(seqs)
+    m = FourDTreeModel(ModelSettings(n_t=16)).fit(seqs)
     train = m.population.trajectories.detach()
     z = m.sample_coefficients(200, torch.Generator().manual_seed(1))
     nov = novelty(distance_matrix(m.trajectories(z).detach(), train), distance_matrix(train))
@@ -437,3 +438,31 @@ def test_samples_are_new_plants_not_copies() -> None:
     # and the check can fail: the training plants themselves (memorisation) are all within the threshold
     memorised = novelty(distance_matrix(train, train), distance_matrix(train))
     assert memorised["share_closer"] == 1.0, memorised
+
+
+def test_old_style_checkpoint_args_load_into_the_settings(model: FourDTreeModel, plants: list, tmp_path) -> None:
+    """A checkpoint whose ``args`` are the flat constructor keywords (``registration`` / ``temporal`` dicts,
+    ``positions`` / ``cross_lp`` / ``cross_order_tol`` at the top level) rebuilds the same settings and outputs."""
+    from torch4dtree.settings import CrossSettings, RegistrationSettings, TemporalSettings
+
+    path = tmp_path / "old.pt"
+    model.save(str(path))
+    raw = torch.load(path, weights_only=True)
+    s = model.settings
+    raw["args"] = {"lambdas": list(s.lambdas), "rotation": s.rotation, "n_t": s.n_t,
+                   "tree_components": s.tree_components, "tree_variance": s.tree_variance,
+                   "medoid_candidates": s.medoid_candidates, "registration": {"neighbourhood": 4}, "modes": s.modes,
+                   "mode_variance": s.mode_variance, "c": s.c, "mean_iters": s.mean_iters, "temporal": {},
+                   "positions": s.cross.positions, "cross_lp": s.cross.lp, "cross_order_tol": s.cross.order_tol}
+    torch.save(raw, path)
+    old = load(path)
+    assert old.settings == model.settings
+    assert isinstance(old.settings.registration, RegistrationSettings)
+    assert isinstance(old.settings.cross, CrossSettings) and isinstance(old.settings.temporal, TemporalSettings)
+    z = torch.randn(3, model.n_modes, dtype=torch.float64, generator=torch.Generator().manual_seed(1))
+    assert torch.equal(old(z).trajectory, model(z).trajectory)
+    assert torch.equal(old.encode(plants[3]), model.encode(plants[3]))
+    raw["args"]["registration"] = {"neighbourhod": 4}
+    torch.save(raw, path)
+    with pytest.raises(CheckpointError, match="neighbourhod"):
+        load(path)

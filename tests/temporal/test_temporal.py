@@ -13,6 +13,7 @@ from torch4dtree.curves import interpolate_curve, invert_warp, random_warp, srvf
 from torch4dtree.curves.rotation import random_rotation
 from torch4dtree.data import synthetic_dataset, synthetic_plant
 from torch4dtree.io import LoadOptions, read_sequence
+from torch4dtree.settings import RegistrationSettings
 from torch4dtree.space.pca import TreePCA
 from torch4dtree.temporal import (
     AlignedSequence,
@@ -216,12 +217,13 @@ def test_warp_is_dp_warps_exactly():
     the warps of its plain search (``time_weight=0``; the default searches again with a time coordinate) are
     dp_warp's, bit for bit, on the trajectories' SRVFs, with and without a band."""
     from torch4dtree.curves.register import dp_warp
-    from torch4dtree.temporal.registration import NEIGHBOURHOOD, REFINE
+    from torch4dtree.settings import TEMPORAL_NEIGHBOURHOOD, TEMPORAL_REFINE
 
     ref, mov, _ = warped_pair(5, 4, 32, seed=13)
     for band, coarse in ((None, None), (3, 8)):
         r = register_trajectories(ref, mov, band=band, coarse=coarse, time_weight=0)
-        want = dp_warp(srvf(ref), srvf(mov), neighbourhood=NEIGHBOURHOOD, band=band, coarse=coarse, refine=REFINE)
+        want = dp_warp(srvf(ref), srvf(mov), neighbourhood=TEMPORAL_NEIGHBOURHOOD, band=band, coarse=coarse,
+                       refine=TEMPORAL_REFINE)
         assert torch.equal(r.warp, want.gamma)
         torch.testing.assert_close(r.distance.square() - (ref[:, 0] - mov[:, 0]).square().sum(-1), want.energy)
 
@@ -467,7 +469,7 @@ def test_one_shape_under_warps_and_rotations_becomes_constant():
     seq = TreeSequence(Trees.cat(list(frames)), torch.tensor([0.0, 1.0, 3.0], dtype=torch.float64))
     # warped positions: the chain bound below is in the layout's metric, which a registration's distance is only
     # with them (ranks compare children by node rank)
-    al = register_sequence(seq, rotation="so3", neighbourhood=6, positions="warped")
+    al = register_sequence(seq, rotation="so3", positions="warped", registration=RegistrationSettings(neighbourhood=6))
     N = int(base.num_branches[0])
     assert torch.equal(al.identity, torch.arange(N).expand(3, N))
     for j in range(3):
