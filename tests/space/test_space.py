@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 import torch
-from test_registration import random_tree, transformed_copy
+from samples import random_tree, transformed_copy
 
 from torch4dtree.curves import srvf, srvf_sq_norm
 from torch4dtree.settings import RegistrationSettings
