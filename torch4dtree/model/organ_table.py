@@ -7,9 +7,9 @@ from the base of the main branch, ``(3, 0)`` the first organ on that one). Keys 
 written in them, and the same key names the same place in every plant.
 
 Per organ the table keeps size apart from shape and from timing: its largest length ``L`` (log), its unit-length
-curve at that frame (translated to start at 0), its growth curve ``r(u) = length(u) / L`` on a common grid of
-normalised ages ``u`` (0 before it appears; made monotone, as organs grow), where it attaches on its parent
-(``s``) and its azimuth about the vertical relative to its parent's.
+curve (translated to start at 0) at each age, its growth curve ``r(u) = length(u) / L`` on a common grid of
+normalised ages ``u`` (0 before it appears and after it was last seen; monotone in between, as organs grow), where
+it attaches on its parent (``s``) and its azimuth about the vertical relative to its parent's.
 """
 
 from __future__ import annotations
@@ -40,8 +40,9 @@ class OrganTable:
         plant: ``(R,)`` long, the plant of each organ.
         key: ``(R,)`` long, the key of each organ.
         log_length: ``(R,)`` log of the organ's largest length.
-        shape: ``(R, T, d)`` unit-length curve starting at the origin.
-        growth: ``(R, G)`` length over largest length at each age of ``ages`` (monotone, in ``[0, 1]``).
+        shape: ``(R, G, T, d)`` unit-length curve starting at the origin at each age (organs bend as they grow).
+        growth: ``(R, G)`` length over largest length at each age of ``ages`` (in ``[0, 1]``; monotone while the
+            organ is seen, 0 before it appears and after it was last seen).
         s: ``(R,)`` attachment parameter on the parent (0 for the main branch).
         azimuth: ``(R,)`` the organ's azimuth (radians) about the vertical.
         parent_azimuth: ``(R,)`` its parent's azimuth (the main branch's own).
@@ -80,7 +81,7 @@ def plant_organs(seq: TreeSequence, ages: Tensor, registration: dict | None = No
         registration: keyword arguments of :func:`torch4dtree.temporal.register_sequence`.
 
     Returns:
-        One dict per organ, parents first: ``key`` (tuple), ``length`` (float), ``shape (T, d)``, ``growth (G,)``,
+        One dict per organ, parents first: ``key`` (tuple), ``length`` (float), ``shape (G, T, d)``, ``growth (G,)``,
         ``s`` (float), ``azimuth`` (float), ``parent_azimuth`` (float).
     """
     from ..temporal.within import register_sequence
@@ -118,17 +119,31 @@ def plant_organs(seq: TreeSequence, ages: Tensor, registration: dict | None = No
         L = float(slot_len[best[k], k])
         if not L > 0:
             continue
-        shape = (curve - curve[0]) / L
         az = float(azimuth(curve))
-        r = slot_len[:, k] / L
-        r = torch.cummax(r, 0).values  # organs grow: a dip (or a missed frame) is read as no growth
-        growth = torch.from_numpy(np.interp(ages.numpy(), u.numpy(), r.numpy())) if n >= 2 else r.expand(len(ages))
+        growth, shape = _growth_and_shapes(slot_len[:, k] / L, glob[:, k], frames.points, lengths, u, ages)
         organs.append({"key": key, "length": L, "shape": shape, "growth": growth,
                        "s": float(frames.s[g]) if key else 0.0, "azimuth": az,
                        "parent_azimuth": az if not key else parent_az})
         kids = sorted(children[k], key=lambda c: float(s_best[c]))
         stack.extend((c, key + (rank,), az) for rank, c in reversed(list(enumerate(kids))))
     return organs
+
+
+def _growth_and_shapes(r: Tensor, glob: Tensor, points: Tensor, lengths: Tensor, u: Tensor, ages: Tensor
+                       ) -> tuple[Tensor, Tensor]:
+    """One organ's growth curve ``(G,)`` and unit-length shapes ``(G, T, d)`` at ``ages``, from its relative length
+    ``r (n,)``, packed branch ``glob (n,)`` (-1 where absent) in each of the ``n`` frames at normalised times ``u``."""
+    seen = torch.nonzero(glob >= 0).reshape(-1)
+    first, last = int(seen[0]), int(seen[-1])
+    r = r.clone()
+    r[first:last + 1] = torch.cummax(r[first:last + 1], 0).values  # growing: a dip or a missed frame is no growth
+    uu, aa = u.numpy(), ages.numpy()
+    growth = torch.from_numpy(np.interp(aa, uu, r.numpy())) if len(u) >= 2 else r.expand(len(ages)).clone()
+    # each age takes the shape of the frame nearest to it among those holding the organ
+    nearest = seen[(torch.from_numpy(aa)[:, None] - u[seen][None]).abs().argmin(1)]
+    curves = points[glob[nearest]]
+    shape = (curves - curves[:, :1]) / lengths[glob[nearest]][:, None, None]
+    return growth, shape
 
 
 def organ_table(sequences: Sequence[TreeSequence], n_ages: int, registration: dict | None = None) -> OrganTable:

@@ -267,7 +267,7 @@ class OrganModel(nn.Module):
                 start = (interpolate_curve(points[p][None], self.s[chosen[k]].reshape(1, 1))[0, 0] if p >= 0
                          else torch.zeros(shapes[k].shape[-1], dtype=torch.float64))
                 me = len(points)
-                points.append(start + size[k] * shapes[k])
+                points.append(start + size[k] * shapes[k][j])
                 parent.append(p)
                 s.append(float(self.s[chosen[k]]) if p >= 0 else 0.0)
                 label.append(k)
