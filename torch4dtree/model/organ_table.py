@@ -22,7 +22,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ..trees.structures import TreeSequence
+from ..trees.structures import Trees, TreeSequence
 
 __all__ = ["OrganTable", "azimuth", "organ_table", "plant_organs"]
 
@@ -43,7 +43,8 @@ class OrganTable:
         shape: ``(R, G, T, d)`` unit-length curve starting at the origin at each age (organs bend as they grow).
         growth: ``(R, G)`` length over largest length at each age of ``ages`` (in ``[0, 1]``; monotone while the
             organ is seen, 0 before it appears and after it was last seen).
-        s: ``(R,)`` attachment parameter on the parent (0 for the main branch).
+        s: ``(R, G)`` attachment parameter on the parent at each age (0 for the main branch): organs keep their place
+            on a stem that grows at its tip, so the share of the parent below them changes with age.
         azimuth: ``(R,)`` the organ's azimuth (radians) about the vertical.
         parent_azimuth: ``(R,)`` its parent's azimuth (the main branch's own).
         ages: ``(G,)`` normalised ages in ``[0, 1]``.
@@ -120,19 +121,20 @@ def plant_organs(seq: TreeSequence, ages: Tensor, registration: dict | None = No
         if not L > 0:
             continue
         az = float(azimuth(curve))
-        growth, shape = _growth_and_shapes(slot_len[:, k] / L, glob[:, k], frames.points, lengths, u, ages)
+        growth, shape, s_age = _growth_and_shapes(slot_len[:, k] / L, glob[:, k], frames, lengths, u, ages)
         organs.append({"key": key, "length": L, "shape": shape, "growth": growth,
-                       "s": float(frames.s[g]) if key else 0.0, "azimuth": az,
+                       "s": s_age if key else torch.zeros_like(s_age), "azimuth": az,
                        "parent_azimuth": az if not key else parent_az})
         kids = sorted(children[k], key=lambda c: float(s_best[c]))
         stack.extend((c, key + (rank,), az) for rank, c in reversed(list(enumerate(kids))))
     return organs
 
 
-def _growth_and_shapes(r: Tensor, glob: Tensor, points: Tensor, lengths: Tensor, u: Tensor, ages: Tensor
-                       ) -> tuple[Tensor, Tensor]:
-    """One organ's growth curve ``(G,)`` and unit-length shapes ``(G, T, d)`` at ``ages``, from its relative length
-    ``r (n,)``, packed branch ``glob (n,)`` (-1 where absent) in each of the ``n`` frames at normalised times ``u``."""
+def _growth_and_shapes(r: Tensor, glob: Tensor, frames: Trees, lengths: Tensor, u: Tensor, ages: Tensor
+                       ) -> tuple[Tensor, Tensor, Tensor]:
+    """One organ's growth curve ``(G,)``, unit-length shapes ``(G, T, d)`` and attachment ``s (G,)`` at ``ages``,
+    from its relative length ``r (n,)`` and packed branch ``glob (n,)`` (-1 where absent) in each of the ``n`` frames
+    of ``frames`` (branch lengths ``lengths``) at normalised times ``u``."""
     seen = torch.nonzero(glob >= 0).reshape(-1)
     first, last = int(seen[0]), int(seen[-1])
     r = r.clone()
@@ -141,9 +143,9 @@ def _growth_and_shapes(r: Tensor, glob: Tensor, points: Tensor, lengths: Tensor,
     growth = torch.from_numpy(np.interp(aa, uu, r.numpy())) if len(u) >= 2 else r.expand(len(ages)).clone()
     # each age takes the shape of the frame nearest to it among those holding the organ
     nearest = seen[(torch.from_numpy(aa)[:, None] - u[seen][None]).abs().argmin(1)]
-    curves = points[glob[nearest]]
+    curves = frames.points[glob[nearest]]
     shape = (curves - curves[:, :1]) / lengths[glob[nearest]][:, None, None]
-    return growth, shape
+    return growth, shape, frames.s[glob[nearest]]
 
 
 def organ_table(sequences: Sequence[TreeSequence], n_ages: int, registration: dict | None = None) -> OrganTable:
@@ -167,7 +169,7 @@ def organ_table(sequences: Sequence[TreeSequence], n_ages: int, registration: di
         log_length=torch.tensor([math.log(o["length"]) for _, o in rows], dtype=torch.float64),
         shape=torch.stack([o["shape"] for _, o in rows]),
         growth=torch.stack([o["growth"] for _, o in rows]),
-        s=torch.tensor([o["s"] for _, o in rows], dtype=torch.float64),
+        s=torch.stack([o["s"] for _, o in rows]),
         azimuth=torch.tensor([o["azimuth"] for _, o in rows], dtype=torch.float64),
         parent_azimuth=torch.tensor([o["parent_azimuth"] for _, o in rows], dtype=torch.float64),
         ages=ages, summary=torch.tensor(summary, dtype=torch.float64),

@@ -9,12 +9,13 @@ identity per organ over time) and models what the plants are made of instead:
   open-ended, so every training plant is written whole;
 * **a plant latent** ``z`` (log total length at the last and the middle age, log organ count), Gaussian: it ties a
   plant's organs together (vigorous plants have more, longer, earlier organs);
-* **topology given the parent**: organ ``k`` of a parent exists with the probability that the training plants near
-  ``z`` (Gaussian kernel, ``bandwidth`` in standard deviations) have it, given organ ``k - 1`` (or the parent) exists;
-* **geometry and growth per organ from the same kernel**: each organ takes the log length (plus kernel noise), the
-  unit-length shape, the monotone growth curve and the attachment of one training organ with its key, drawn with the
-  kernel weights among the plants that have it. Size is apart from shape, so nothing is averaged into a stub;
-  organs grow as the training organs grow and never shrink.
+* **organs copied with switches** (as haplotype copying models do): key by key, parents first and siblings in
+  order, each organ follows a training plant: the one its previous sibling (or, for a first child, its parent)
+  follows with probability ``persistence``, else one drawn with Gaussian kernel weights near ``z`` (``bandwidth`` in
+  standard deviations) among the plants that have that previous organ. The organ exists if that plant has it (so
+  topology is conditional on the parent and the previous sibling), and takes its log length (plus ``jitter``), its
+  unit-length shapes over age, its monotone growth curve and its attachment. Size is apart from shape, so nothing is
+  averaged into a stub; organs grow as the training organs grow, and vanish only where those did.
 
 It is a kernel (nonparametric) conditional model: the fitted buffers hold the training organs. Samples mix organs of
 different plants, so they are new plants, not copies (benchmarks/bench_generative.py measures both).
@@ -66,6 +67,10 @@ class OrganModel(nn.Module):
             plants' median number of frames.
         bandwidth: the kernel's width over the plant latent, in standard deviations (small: samples follow single
             training plants; large: organs drawn from the whole population regardless of the plant's vigour).
+        persistence: the chance that an organ copies the same training plant as the organ it follows (its previous
+            sibling, or its parent for a first child); otherwise it switches to a plant drawn near the latent. 1
+            copies whole plants, 0 draws every organ afresh (siblings of unrelated plants: ranks along a parent
+            mean different organs in plants with an extra basal organ).
         jitter: standard deviation of the log-length noise added to a drawn organ (0.1: about 10 %).
         c: truncation of the latent's standard normal draws.
         registration: keyword arguments of :func:`torch4dtree.temporal.register_sequence` (organ identities).
@@ -79,12 +84,14 @@ class OrganModel(nn.Module):
         (2, 3)
     """
 
-    def __init__(self, n_ages: int | None = None, bandwidth: float = 0.6, jitter: float = 0.1, c: float = 3.0,
-                 registration: dict[str, Any] | None = None) -> None:
+    def __init__(self, n_ages: int | None = None, bandwidth: float = 0.6, persistence: float = 0.7,
+                 jitter: float = 0.1, c: float = 3.0, registration: dict[str, Any] | None = None) -> None:
         super().__init__()
-        if not bandwidth > 0 or jitter < 0 or not c > 0:
-            raise ValueError(f"need bandwidth > 0, jitter >= 0, c > 0; got {bandwidth}, {jitter}, {c}")
-        self.args = {"n_ages": n_ages, "bandwidth": float(bandwidth), "jitter": float(jitter), "c": float(c),
+        if not bandwidth > 0 or not 0 <= persistence <= 1 or jitter < 0 or not c > 0:
+            raise ValueError(f"need bandwidth > 0, persistence in [0, 1], jitter >= 0, c > 0; got {bandwidth}, "
+                             f"{persistence}, {jitter}, {c}")
+        self.args = {"n_ages": n_ages, "bandwidth": float(bandwidth), "persistence": float(persistence),
+                     "jitter": float(jitter), "c": float(c),
                      "registration": dict(registration or {})}
         self.keys: list[tuple[int, ...]] = []
         f64, long = torch.float64, torch.long
@@ -216,21 +223,22 @@ class OrganModel(nn.Module):
         chosen = torch.full((K,), -1, dtype=torch.long)  # the training organ each present key copies
         log_len = torch.zeros(K, dtype=torch.float64)
         turn = torch.zeros(K, dtype=torch.float64)  # rotation about the vertical of each organ
+        donor_of = torch.full((K,), -1, dtype=torch.long)
         for k in range(K):
             cond = int(self.key_condition[k])
-            if k > 0:
+            if k == 0:
+                donor = int(torch.multinomial(w, 1, generator=g))
+            else:
                 if chosen[cond] < 0:
                     continue
-                den = float(w[has[:, cond]].sum())
-                p = float(w[has[:, k]].sum()) / den if den > 0 else 0.0
-                if float(torch.rand((), generator=g, dtype=torch.float64)) >= p:
+                donor = int(donor_of[cond])
+                if float(torch.rand((), generator=g, dtype=torch.float64)) >= self.args["persistence"]:
+                    # switch: a plant near the latent among those that have the organ this one follows
+                    donor = int(torch.multinomial(torch.where(has[:, cond], w, torch.zeros_like(w)), 1, generator=g))
+                if not has[donor, k]:
                     continue
-            wk = torch.where(has[:, k], w, torch.zeros_like(w))
-            if not float(wk.sum()) > 0:
-                continue
-            donor = int(torch.multinomial(wk, 1, generator=g))
             r = int(self.record[donor, k])
-            chosen[k] = r
+            chosen[k], donor_of[k] = r, donor
             noise = float(torch.randn((), generator=g, dtype=torch.float64))
             log_len[k] = self.log_length[r] + self.args["jitter"] * noise
             if k == 0:
@@ -248,8 +256,6 @@ class OrganModel(nn.Module):
         children: dict[int, list[int]] = {k: [] for k in present}
         for k in present[1:]:
             children[int(self.key_parent[k])].append(k)
-        for k in children:
-            children[k].sort(key=lambda c: float(self.s[chosen[c]]))
         floor = MIN_LENGTH * float(length[0])
         frames = []
         for j in range(len(self.ages)):
@@ -264,14 +270,15 @@ class OrganModel(nn.Module):
                 k, p = stack.pop()
                 if size[k] < floor:
                     continue
-                start = (interpolate_curve(points[p][None], self.s[chosen[k]].reshape(1, 1))[0, 0] if p >= 0
+                start = (interpolate_curve(points[p][None], self.s[chosen[k], j].reshape(1, 1))[0, 0] if p >= 0
                          else torch.zeros(shapes[k].shape[-1], dtype=torch.float64))
                 me = len(points)
                 points.append(start + size[k] * shapes[k][j])
                 parent.append(p)
-                s.append(float(self.s[chosen[k]]) if p >= 0 else 0.0)
+                s.append(float(self.s[chosen[k], j]) if p >= 0 else 0.0)
                 label.append(k)
-                stack.extend((c, me) for c in reversed(children[k]))
+                kids = sorted(children[k], key=lambda c: float(self.s[chosen[c], j]))  # depth-first, children by s
+                stack.extend((c, me) for c in reversed(kids))
             frames.append(Trees(torch.stack(points), torch.tensor(parent), torch.tensor(s, dtype=torch.float64),
                                 torch.tensor([len(points)]), torch.tensor(label)))
         return TreeSequence(Trees.cat(frames), self.times().clone(), name)
