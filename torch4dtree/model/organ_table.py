@@ -141,6 +141,8 @@ def _growth_and_shapes(r: Tensor, glob: Tensor, frames: Trees, lengths: Tensor, 
     r[first:last + 1] = torch.cummax(r[first:last + 1], 0).values  # growing: a dip or a missed frame is no growth
     uu, aa = u.numpy(), ages.numpy()
     growth = torch.from_numpy(np.interp(aa, uu, r.numpy())) if len(u) >= 2 else r.expand(len(ages)).clone()
+    if last + 1 < len(uu):  # gone right after its last frame: where tracking split an organ in two, its other part
+        growth[torch.from_numpy(aa > uu[last] + 1e-9)] = 0.0  # grows in from then, and the two never overlap
     # each age takes the shape of the frame nearest to it among those holding the organ
     nearest = seen[(torch.from_numpy(aa)[:, None] - u[seen][None]).abs().argmin(1)]
     curves = frames.points[glob[nearest]]
