@@ -140,14 +140,28 @@ def _growth_and_shapes(r: Tensor, glob: Tensor, frames: Trees, lengths: Tensor, 
     r = r.clone()
     r[first:last + 1] = torch.cummax(r[first:last + 1], 0).values  # growing: a dip or a missed frame is no growth
     uu, aa = u.numpy(), ages.numpy()
-    growth = torch.from_numpy(np.interp(aa, uu, r.numpy())) if len(u) >= 2 else r.expand(len(ages)).clone()
-    if last + 1 < len(uu):  # gone right after its last frame: where tracking split an organ in two, its other part
-        growth[torch.from_numpy(aa > uu[last] + 1e-9)] = 0.0  # grows in from then, and the two never overlap
-    # each age takes the shape of the frame nearest to it among those holding the organ
-    nearest = seen[(torch.from_numpy(aa)[:, None] - u[seen][None]).abs().argmin(1)]
+    if len(u) < 2:
+        return r.expand(len(ages)).clone(), *_nearest_shapes(seen, glob, frames, lengths, u, ages)
+    # between frames the length is linear, but the organ is there only nearer to a frame that holds it: it appears
+    # and goes at the midpoints (a count read between frames then matches the frames' own, linearly interpolated)
+    growth = torch.from_numpy(np.interp(aa, uu, r.numpy()))
+    if first > 0:
+        growth[torch.from_numpy(aa < 0.5 * (uu[first - 1] + uu[first]))] = 0.0
+    if last + 1 < len(uu):  # where tracking split an organ in two, the parts meet at the midpoint, never overlap
+        after = torch.from_numpy(aa > uu[last])
+        growth[after] = float(r[last])
+        growth[torch.from_numpy(aa > 0.5 * (uu[last] + uu[last + 1]))] = 0.0
+    return growth, *_nearest_shapes(seen, glob, frames, lengths, u, ages)
+
+
+def _nearest_shapes(seen: Tensor, glob: Tensor, frames: Trees, lengths: Tensor, u: Tensor, ages: Tensor
+                    ) -> tuple[Tensor, Tensor]:
+    """Unit-length shapes ``(G, T, d)`` and attachments ``(G,)`` of an organ at ``ages``, each from the frame
+    nearest to the age among those ``seen`` (indices of the frames holding it)."""
+    nearest = seen[(ages[:, None] - u[seen][None]).abs().argmin(1)]
     curves = frames.points[glob[nearest]]
     shape = (curves - curves[:, :1]) / lengths[glob[nearest]][:, None, None]
-    return growth, shape, frames.s[glob[nearest]]
+    return shape, frames.s[glob[nearest]]
 
 
 def organ_table(sequences: Sequence[TreeSequence], n_ages: int, registration: dict | None = None) -> OrganTable:
