@@ -35,7 +35,7 @@ from ..curves.srvf import interpolate_curve
 from ..trees.structures import Trees, TreeSequence
 from .organ_table import UP, organ_table
 
-__all__ = ["OrganModel", "OrganModelError"]
+__all__ = ["OrganModel", "OrganModelError", "assemble_frames"]
 
 FORMAT = "torch4dtree.OrganModel"
 # the plant latent's features: log total length at the last age, at the middle age, log(1 + organs at the last age)
@@ -252,33 +252,45 @@ class OrganModel(nn.Module):
     def _frames(self, chosen: Tensor, length: Tensor, turn: Tensor, name: str) -> TreeSequence:
         """The frames of a plant given its organs: each at ``length x growth(age)``, parents before children."""
         present = [k for k in range(len(self.keys)) if chosen[k] >= 0]
+        sizes = {k: length[k] * self.growth[chosen[k]] for k in present}
         shapes = {k: _rotate_about_up(self.shape[chosen[k]], turn[k]) for k in present}
-        children: dict[int, list[int]] = {k: [] for k in present}
-        for k in present[1:]:
-            children[int(self.key_parent[k])].append(k)
-        floor = MIN_LENGTH * float(length[0])
-        frames = []
-        for j in range(len(self.ages)):
-            size = {k: float(length[k] * self.growth[chosen[k], j]) for k in present}
-            size[0] = max(size[0], floor)
-            points: list[Tensor] = []
-            parent: list[int] = []
-            s: list[float] = []
-            label: list[int] = []
-            stack = [(0, -1)]
-            while stack:
-                k, p = stack.pop()
-                if size[k] < floor:
-                    continue
-                start = (interpolate_curve(points[p][None], self.s[chosen[k], j].reshape(1, 1))[0, 0] if p >= 0
-                         else torch.zeros(shapes[k].shape[-1], dtype=torch.float64))
-                me = len(points)
-                points.append(start + size[k] * shapes[k][j])
-                parent.append(p)
-                s.append(float(self.s[chosen[k], j]) if p >= 0 else 0.0)
-                label.append(k)
-                kids = sorted(children[k], key=lambda c: float(self.s[chosen[c], j]))  # depth-first, children by s
-                stack.extend((c, me) for c in reversed(kids))
-            frames.append(Trees(torch.stack(points), torch.tensor(parent), torch.tensor(s, dtype=torch.float64),
-                                torch.tensor([len(points)]), torch.tensor(label)))
-        return TreeSequence(Trees.cat(frames), self.times().clone(), name)
+        return assemble_frames(sizes, shapes, {k: self.s[chosen[k]] for k in present}, self.key_parent,
+                               self.times().clone(), name)
+
+
+def assemble_frames(sizes: dict[int, Tensor], shapes: dict[int, Tensor], s: dict[int, Tensor], key_parent: Tensor,
+                    times: Tensor, name: str) -> TreeSequence:
+    """A 4D tree from its organs: organ ``k`` (key ``0`` the main branch, parents in ``key_parent``) has length
+    ``sizes[k] (G,)`` (0: absent), unit-length shapes ``shapes[k] (G, T, d)`` and attachment ``s[k] (G,)`` at each of
+    the ``G`` frames (``times``). An organ shorter than :data:`MIN_LENGTH` of the final main branch, or whose parent
+    is absent, is left out of that frame; the main branch is always there (at least that long)."""
+    present = sorted(sizes)
+    children: dict[int, list[int]] = {k: [] for k in present}
+    for k in present[1:]:
+        children[int(key_parent[k])].append(k)
+    floor = MIN_LENGTH * float(sizes[0].max())
+    frames = []
+    for j in range(len(times)):
+        size = {k: float(sizes[k][j]) for k in present}
+        size[0] = max(size[0], floor)
+        points: list[Tensor] = []
+        parent: list[int] = []
+        s_j: list[float] = []
+        label: list[int] = []
+        stack = [(0, -1)]
+        while stack:
+            k, p = stack.pop()
+            if size[k] < floor:
+                continue
+            start = (interpolate_curve(points[p][None], s[k][j].reshape(1, 1))[0, 0] if p >= 0
+                     else torch.zeros(shapes[k].shape[-1], dtype=torch.float64))
+            me = len(points)
+            points.append(start + size[k] * shapes[k][j])
+            parent.append(p)
+            s_j.append(float(s[k][j]) if p >= 0 else 0.0)
+            label.append(k)
+            kids = sorted(children[k], key=lambda c: float(s[c][j]))  # depth-first, children by s
+            stack.extend((c, me) for c in reversed(kids))
+        frames.append(Trees(torch.stack(points), torch.tensor(parent), torch.tensor(s_j, dtype=torch.float64),
+                            torch.tensor([len(points)]), torch.tensor(label)))
+    return TreeSequence(Trees.cat(frames), times, name)
