@@ -9,6 +9,7 @@ import torch
 
 from torch4dtree.data.synthetic import synthetic_plant
 from torch4dtree.model.fourd import sequence_validity
+from torch4dtree.model.organ_forecast import forecast_organs
 from torch4dtree.model.organs import OrganModel
 from torch4dtree.trees.structures import TreeSequence
 
@@ -104,3 +105,16 @@ def test_plausible_and_new_where_the_mean_and_a_copy_are_not(
     collapsed = [samples[0]] * len(samples)  # one plant for all: a model that has collapsed onto its mean
     assert not plausible(collapsed, held)
     assert not novel(train, train, held)  # memorising: the training plants themselves
+
+
+def test_forecast_continues_an_observed_plant(
+        model: OrganModel, population: tuple[list[TreeSequence], list[TreeSequence]]) -> None:
+    plant = population[1][0]
+    future = forecast_organs(model, plant[[0, 1]], n=3, generator=torch.Generator().manual_seed(4))
+    seen = float(plant.frames[1].total_length()[0])
+    for f in future:
+        assert sequence_validity(f) == []
+        assert float(f.times[0]) > float(plant.times[1])
+        grown = f.frames.total_length()
+        assert float(grown[0]) >= 0.9 * seen and (grown[1:] >= grown[:-1] - 1e-6).all()
+        assert 0.5 < float(grown[-1]) / float(plant.frames[-1].total_length()[0]) < 2.0

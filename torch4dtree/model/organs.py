@@ -35,7 +35,7 @@ from ..curves.srvf import interpolate_curve
 from ..trees.structures import Trees, TreeSequence
 from .organ_table import UP, organ_table
 
-__all__ = ["OrganModel", "OrganModelError", "assemble_frames"]
+__all__ = ["OrganModel", "OrganModelError", "assemble_frames", "rotate_about_up"]
 
 FORMAT = "torch4dtree.OrganModel"
 # the plant latent's features: log total length at the last age, at the middle age, log(1 + organs at the last age)
@@ -49,7 +49,7 @@ class OrganModelError(ValueError):
     """An :class:`OrganModel` used before fitting, or a checkpoint that is not one."""
 
 
-def _rotate_about_up(x: Tensor, angle: Tensor | float) -> Tensor:
+def rotate_about_up(x: Tensor, angle: Tensor | float) -> Tensor:
     """Rotate points ``(..., d)`` about the vertical axis by ``angle`` radians."""
     c, s = math.cos(float(angle)), math.sin(float(angle))
     h = [i for i in range(x.shape[-1]) if i != UP][:2]
@@ -253,7 +253,7 @@ class OrganModel(nn.Module):
         """The frames of a plant given its organs: each at ``length x growth(age)``, parents before children."""
         present = [k for k in range(len(self.keys)) if chosen[k] >= 0]
         sizes = {k: length[k] * self.growth[chosen[k]] for k in present}
-        shapes = {k: _rotate_about_up(self.shape[chosen[k]], turn[k]) for k in present}
+        shapes = {k: rotate_about_up(self.shape[chosen[k]], turn[k]) for k in present}
         return assemble_frames(sizes, shapes, {k: self.s[chosen[k]] for k in present}, self.key_parent,
                                self.times().clone(), name)
 
