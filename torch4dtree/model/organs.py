@@ -40,6 +40,8 @@ __all__ = ["OrganModel", "OrganModelError", "assemble_frames", "rotate_about_up"
 FORMAT = "torch4dtree.OrganModel"
 # the plant latent's features: log total length at the last age, at the middle age, log(1 + organs at the last age)
 LATENT = 3
+# siblings attached closer than this (share of the parent) sit on one node (a whorl, a leaflet pair)
+SAME_NODE = 1e-4
 # keep a sampled organ in a frame when it is at least this share of its plant's final main-branch length (a shorter
 # one would be a zero-length branch once written)
 MIN_LENGTH = 1e-3
@@ -224,6 +226,7 @@ class OrganModel(nn.Module):
         log_len = torch.zeros(K, dtype=torch.float64)
         turn = torch.zeros(K, dtype=torch.float64)  # rotation about the vertical of each organ
         donor_of = torch.full((K,), -1, dtype=torch.long)
+        s_of: dict[int, Tensor] = {}  # each organ's attachment per age
         for k in range(K):
             cond = int(self.key_condition[k])
             if k == 0:
@@ -239,6 +242,12 @@ class OrganModel(nn.Module):
                     continue
             r = int(self.record[donor, k])
             chosen[k], donor_of[k] = r, donor
+            s_of[k] = self.s[r]
+            if k > 0 and self.keys[k][-1] > 0:  # organs sharing a node in their plant share it here too
+                before = int(self.record[donor, cond])
+                if before >= 0:
+                    same = (self.s[r] - self.s[before]).abs() < SAME_NODE
+                    s_of[k] = torch.where(same, s_of[cond], self.s[r])
             noise = float(torch.randn((), generator=g, dtype=torch.float64))
             log_len[k] = self.log_length[r] + self.args["jitter"] * noise
             if k == 0:
@@ -247,14 +256,15 @@ class OrganModel(nn.Module):
                 parent = int(self.key_parent[k])
                 parent_az = self.azimuth[chosen[parent]] + turn[parent]
                 turn[k] = parent_az - self.parent_azimuth[r]
-        return self._frames(chosen, log_len.exp(), turn, name)
+        return self._frames(chosen, log_len.exp(), turn, s_of, name)
 
-    def _frames(self, chosen: Tensor, length: Tensor, turn: Tensor, name: str) -> TreeSequence:
+    def _frames(self, chosen: Tensor, length: Tensor, turn: Tensor, s_of: dict[int, Tensor], name: str
+                ) -> TreeSequence:
         """The frames of a plant given its organs: each at ``length x growth(age)``, parents before children."""
         present = [k for k in range(len(self.keys)) if chosen[k] >= 0]
         sizes = {k: length[k] * self.growth[chosen[k]] for k in present}
         shapes = {k: rotate_about_up(self.shape[chosen[k]], turn[k]) for k in present}
-        return assemble_frames(sizes, shapes, {k: self.s[chosen[k]] for k in present}, self.key_parent,
+        return assemble_frames(sizes, shapes, {k: s_of[k] for k in present}, self.key_parent,
                                self.times().clone(), name)
 
 
