@@ -7,8 +7,9 @@ identity per organ over time) and models what the plants are made of instead:
 
 * **slots by botanical position** (:mod:`torch4dtree.model.organ_table`): the ``k``-th organ along its parent,
   open-ended, so every training plant is written whole;
-* **a plant latent** ``z`` (log total length at the last and the middle age, log organ count), Gaussian: it ties a
-  plant's organs together (vigorous plants have more, longer, earlier organs);
+* **a plant latent** ``z`` (log total length at the last and the middle age, log organ count), drawn from the
+  training plants' kernel density: it ties a plant's organs together (vigorous plants have more, longer, earlier
+  organs);
 * **organs copied with switches** (as haplotype copying models do): key by key, parents first and siblings in
   order, each organ follows a training plant: the one its previous sibling (or, for a first child, its parent)
   follows with probability ``persistence``, else one drawn with Gaussian kernel weights near ``z`` (``bandwidth`` in
@@ -74,7 +75,7 @@ class OrganModel(nn.Module):
             copies whole plants, 0 draws every organ afresh (siblings of unrelated plants: ranks along a parent
             mean different organs in plants with an extra basal organ).
         jitter: standard deviation of the log-length noise added to a drawn organ (0.1: about 10 %).
-        c: truncation of the latent's standard normal draws.
+        c: truncation of the latent's standard normal noise.
         registration: keyword arguments of :func:`torch4dtree.temporal.register_sequence` (organ identities).
 
     Example:
@@ -101,8 +102,6 @@ class OrganModel(nn.Module):
                             ("shape", f64), ("growth", f64), ("s", f64), ("azimuth", f64), ("parent_azimuth", f64),
                             ("summary", f64), ("ages", f64)):
             self.register_buffer(name, torch.zeros(0, dtype=dtype))
-        self.register_buffer("latent_mean", torch.zeros(LATENT, dtype=f64))
-        self.register_buffer("latent_chol", torch.eye(LATENT, dtype=f64))
         self.register_buffer("time_start", torch.tensor(0.0, dtype=f64))
         self.register_buffer("duration", torch.tensor(1.0, dtype=f64))
         self.report_: dict[str, Any] = {}
@@ -169,15 +168,12 @@ class OrganModel(nn.Module):
             if k:
                 condition[i] = index[k[:-1] + (k[-1] - 1,)] if k[-1] > 0 else index[k[:-1]]
         summary = table.summary
-        mean = summary.mean(0)
-        cov = torch.cov(summary.T) + 1e-9 * torch.eye(LATENT, dtype=torch.float64)
         self.keys = table.keys
         self.key_parent, self.key_condition, self.record = table.key_parent, condition, record
         self.log_length = table.log_length
         self.shape, self.growth, self.s = table.shape, table.growth, table.s
         self.azimuth, self.parent_azimuth = table.azimuth, table.parent_azimuth
         self.summary, self.ages = summary, table.ages
-        self.latent_mean, self.latent_chol = mean, torch.linalg.cholesky(cov)
         starts = torch.tensor([float(s.times[0]) for s in sequences], dtype=torch.float64)
         spans = torch.tensor([float(s.times[-1] - s.times[0]) for s in sequences], dtype=torch.float64)
         self.time_start, self.duration = starts.mean(), spans.mean().clamp_min(1e-12)
@@ -214,8 +210,11 @@ class OrganModel(nn.Module):
         return w / w.sum() if w.sum() > 0 else torch.full_like(w, 1 / len(w))
 
     def _latent(self, g: torch.Generator) -> Tensor:
+        """A plant latent from the training plants' kernel density: one of them, moved by ``bandwidth`` standard
+        deviations of Gaussian noise (truncated at ``c``), so every training plant is as likely a neighbour."""
+        plant = int(torch.randint(0, len(self.summary), (), generator=g))
         eps = torch.randn(LATENT, generator=g, dtype=torch.float64).clamp(-self.args["c"], self.args["c"])
-        return self.latent_mean + self.latent_chol @ eps
+        return self.summary[plant] + self.args["bandwidth"] * self.summary.std(0) * eps
 
     def _grow(self, g: torch.Generator, name: str) -> TreeSequence:
         """One plant: latent, then organs key by key (topology, donors, sizes, rotations), then its frames."""
