@@ -66,7 +66,12 @@ class OrganTable:
 
 
 def azimuth(curves: Tensor) -> Tensor:
-    """``(..., T, d) -> (...)`` the angle about the vertical of each curve's chord (first to last point)."""
+    """``(..., T, d) -> (...)`` the angle about the vertical of each curve's chord (first to last point).
+
+    Example:
+        >>> round(float(azimuth(torch.tensor([[0.0, 0.0, 0.0], [0.0, 1.0, 1.0]]))), 4)
+        1.5708
+    """
     chord = curves[..., -1, :] - curves[..., 0, :]
     horizontal = [i for i in range(curves.shape[-1]) if i != UP][:2]
     return torch.atan2(chord[..., horizontal[1]], chord[..., horizontal[0]])
@@ -165,7 +170,14 @@ def _nearest_shapes(seen: Tensor, glob: Tensor, frames: Trees, lengths: Tensor, 
 
 
 def organ_table(sequences: Sequence[TreeSequence], n_ages: int, registration: dict | None = None) -> OrganTable:
-    """Register every 4D tree within itself and tabulate its organs by botanical key (:class:`OrganTable`)."""
+    """Register every 4D tree within itself and tabulate its organs by botanical key (:class:`OrganTable`).
+
+    Example:
+        >>> from torch4dtree.data.synthetic import synthetic_plant
+        >>> table = organ_table([synthetic_plant(kind="bean", seed=0, n_frames=3, T=16).sequence], n_ages=3)
+        >>> table.keys[0], table.growth.shape[1], bool((table.growth <= 1).all())
+        ((), 3, True)
+    """
     ages = torch.linspace(0, 1, n_ages, dtype=torch.float64)
     per_plant = [plant_organs(seq, ages, registration) for seq in sequences]
     keys = sorted({o["key"] for organs in per_plant for o in organs}, key=lambda k: (len(k), k))

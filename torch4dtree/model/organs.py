@@ -53,7 +53,12 @@ class OrganModelError(ValueError):
 
 
 def rotate_about_up(x: Tensor, angle: Tensor | float) -> Tensor:
-    """Rotate points ``(..., d)`` about the vertical axis by ``angle`` radians."""
+    """Rotate points ``(..., d)`` about the vertical axis by ``angle`` radians.
+
+    Example:
+        >>> rotate_about_up(torch.tensor([[1.0, 0.0, 2.0]]), math.pi / 2).round().tolist()
+        [[0.0, 1.0, 2.0]]
+    """
     c, s = math.cos(float(angle)), math.sin(float(angle))
     h = [i for i in range(x.shape[-1]) if i != UP][:2]
     out = x.clone()
@@ -272,7 +277,18 @@ def assemble_frames(sizes: dict[int, Tensor], shapes: dict[int, Tensor], s: dict
     """A 4D tree from its organs: organ ``k`` (key ``0`` the main branch, parents in ``key_parent``) has length
     ``sizes[k] (G,)`` (0: absent), unit-length shapes ``shapes[k] (G, T, d)`` and attachment ``s[k] (G,)`` at each of
     the ``G`` frames (``times``). An organ shorter than :data:`MIN_LENGTH` of the final main branch, or whose parent
-    is absent, is left out of that frame; the main branch is always there (at least that long)."""
+    is absent, is left out of that frame; the main branch is always there (at least that long).
+
+    Example:
+        >>> up = torch.linspace(0, 1, 4)[:, None] * torch.tensor([0.0, 0.0, 1.0])  # a unit vertical segment
+        >>> side = torch.linspace(0, 1, 4)[:, None] * torch.tensor([1.0, 0.0, 0.0])
+        >>> plant = assemble_frames({0: torch.tensor([1.0, 2.0]), 1: torch.tensor([0.0, 0.5])},
+        ...                         {0: up.expand(2, 4, 3), 1: side.expand(2, 4, 3)},
+        ...                         {0: torch.zeros(2), 1: torch.full((2,), 0.5)}, torch.tensor([-1, 0]),
+        ...                         torch.tensor([0.0, 1.0]), "two frames")
+        >>> plant.frames.num_branches.tolist(), plant.frames.points[-1, 0].round(decimals=4).tolist()
+        ([1, 2], [0.0, 0.0, 1.0])
+    """
     present = sorted(sizes)
     children: dict[int, list[int]] = {k: [] for k in present}
     for k in present[1:]:
