@@ -52,7 +52,7 @@ def forecast_organs(model: OrganModel, partial: TreeSequence, n: int = 1, genera
         >>> len(future), len(future[0]) >= 1
         (2, True)
     """
-    model._check_fitted()
+    model.check_fitted()
     g = generator if generator is not None else torch.Generator().manual_seed(0)
     ages = model.ages
     u_obs = float(((partial.times[-1].double() - model.time_start) / model.duration).clamp(0, 1))

@@ -186,7 +186,8 @@ class OrganModel(nn.Module):
                         "seconds": time.perf_counter() - t0}
         return self
 
-    def _check_fitted(self) -> None:
+    def check_fitted(self) -> None:
+        """Raise :class:`OrganModelError` unless the model is fitted (or loaded)."""
         if not self.is_fitted:
             raise OrganModelError("OrganModel is not fitted: call fit() or OrganModel.load()")
 
@@ -194,12 +195,12 @@ class OrganModel(nn.Module):
     def sample_coefficients(self, n: int, generator: torch.Generator | None = None) -> Tensor:
         """``(n, 1)`` one seed per plant (a float64 integer below 2**31): :meth:`decode` grows plant ``i`` from it,
         so a plant is reproducible on its own."""
-        self._check_fitted()
+        self.check_fitted()
         return torch.randint(0, 2**31 - 1, (n, 1), generator=generator, dtype=torch.long).to(torch.float64)
 
     def decode(self, z: Tensor) -> list[TreeSequence]:
         """``z (B, 1)`` seeds (:meth:`sample_coefficients`) -> ``B`` 4D trees (``label`` = botanical key index)."""
-        self._check_fitted()
+        self.check_fitted()
         zz = z.reshape(-1)
         return [self._grow(torch.Generator().manual_seed(int(seed)), f"sample_{i:03d}") for i, seed in enumerate(zz)]
 
