@@ -1,0 +1,120 @@
+"""OrganModel: valid samples, seeds, checkpoints, growth, and plausible yet new plants on a small population."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import torch
+
+from torch4dtree.data.synthetic import synthetic_plant
+from torch4dtree.model.fourd import sequence_validity
+from torch4dtree.model.organ_forecast import forecast_organs
+from torch4dtree.model.organs import OrganModel
+from torch4dtree.trees.structures import TreeSequence
+
+KIND = "bean"
+
+
+@pytest.fixture(scope="module")
+def population() -> tuple[list[TreeSequence], list[TreeSequence]]:
+    plants = [synthetic_plant(KIND, seed, n_frames=4, T=16).sequence for seed in range(16)]
+    return plants[:8], plants[8:]
+
+
+@pytest.fixture(scope="module")
+def model(population: tuple[list[TreeSequence], list[TreeSequence]]) -> OrganModel:
+    return OrganModel().fit(population[0])
+
+
+def morphometrics(plants: list[TreeSequence]) -> torch.Tensor:
+    """``(P, 6)`` log(1 + x) of total length, height and branch count at the middle and the last frame."""
+    rows = []
+    for p in plants:
+        feats = []
+        for j in (len(p) // 2, len(p) - 1):
+            f = p.frames[j]
+            feats += [float(f.total_length()[0]), float(f.height()[0]), float(f.num_branches[0])]
+        rows.append(feats)
+    return torch.tensor(rows, dtype=torch.float64).log1p()
+
+
+def plausible(samples: list[TreeSequence], real: list[TreeSequence]) -> bool:
+    """Medians within 0.5-2x of the real plants' and a spread at least a third of theirs, feature by feature."""
+    s, r = morphometrics(samples).expm1(), morphometrics(real).expm1()
+    ratio = s.median(0).values / r.median(0).values
+    spread = morphometrics(samples).std(0) / morphometrics(real).std(0).clamp_min(1e-9)
+    return bool(((ratio > 0.5) & (ratio < 2.0)).all() and (spread > 1 / 3).all())
+
+
+def novel(samples: list[TreeSequence], train: list[TreeSequence], real: list[TreeSequence]) -> bool:
+    """Samples are as far from their nearest training plant as new real plants are (at least a third as far)."""
+    t = morphometrics(train)
+    scale = t.std(0).clamp_min(1e-9)
+
+    def nearest(x: torch.Tensor) -> torch.Tensor:
+        return torch.cdist(x / scale, t / scale).min(1).values.median()
+
+    return bool(nearest(morphometrics(samples)) > nearest(morphometrics(real)) / 3)
+
+
+def test_samples_are_valid_trees(model: OrganModel) -> None:
+    plants = model.sample(12, generator=torch.Generator().manual_seed(1))
+    for p in plants:
+        assert sequence_validity(p) == []
+        assert torch.isfinite(p.frames.points).all()
+        assert (p.frames.branch_lengths() > 0).all()
+        assert len(p) == len(model.ages)
+
+
+def test_seeds_reproduce_and_checkpoint_round_trips(model: OrganModel, tmp_path: Path) -> None:
+    a = model.sample(3, generator=torch.Generator().manual_seed(5))
+    b = model.sample(3, generator=torch.Generator().manual_seed(5))
+    assert all(torch.equal(x.frames.points, y.frames.points) for x, y in zip(a, b))
+    z = model.sample_coefficients(3, torch.Generator().manual_seed(5))
+    alone = model.decode(z[1:2])[0]
+    assert torch.equal(alone.frames.points, a[1].frames.points)
+    loaded = OrganModel.load(model.save(tmp_path / "organs.pt"))
+    c = loaded.sample(3, generator=torch.Generator().manual_seed(5))
+    assert all(torch.equal(x.frames.points, y.frames.points) for x, y in zip(a, c))
+    assert loaded.keys == model.keys
+
+
+def test_organs_grow_and_vanish_no_more_than_in_training(model: OrganModel) -> None:
+    events = seen = 0
+    for p in model.sample(12, generator=torch.Generator().manual_seed(2)):
+        lengths = torch.zeros(len(p), len(model.keys), dtype=torch.float64)  # (frames, keys)
+        for j in range(len(p)):
+            f = p.frames[j]
+            lengths[j, f.label] = f.branch_lengths().to(torch.float64)
+        alive = lengths > 0
+        both = alive[:-1] & alive[1:]
+        assert (lengths[1:][both] >= lengths[:-1][both] - 1e-9).all()  # an organ never shrinks while it lives
+        events += int((alive[:-1] & ~alive[1:]).sum())
+        seen += int(alive[:-1].sum())
+    train_alive = model.growth > 0  # the training organs on the same ages
+    train_rate = float((train_alive[:, :-1] & ~train_alive[:, 1:]).sum()) / float(train_alive[:, :-1].sum())
+    assert events / seen <= 1.5 * train_rate + 0.01
+
+
+def test_plausible_and_new_where_the_mean_and_a_copy_are_not(
+        model: OrganModel, population: tuple[list[TreeSequence], list[TreeSequence]]) -> None:
+    train, held = population
+    samples = model.sample(24, generator=torch.Generator().manual_seed(3))
+    assert plausible(samples, held) and novel(samples, train, held)
+    collapsed = [samples[0]] * len(samples)  # one plant for all: a model that has collapsed onto its mean
+    assert not plausible(collapsed, held)
+    assert not novel(train, train, held)  # memorising: the training plants themselves
+
+
+def test_forecast_continues_an_observed_plant(
+        model: OrganModel, population: tuple[list[TreeSequence], list[TreeSequence]]) -> None:
+    plant = population[1][0]
+    future = forecast_organs(model, plant[[0, 1]], n=3, generator=torch.Generator().manual_seed(4))
+    seen = float(plant.frames[1].total_length()[0])
+    for f in future:
+        assert sequence_validity(f) == []
+        assert float(f.times[0]) > float(plant.times[1])
+        grown = f.frames.total_length()
+        assert float(grown[0]) >= 0.9 * seen and (grown[1:] >= grown[:-1] - 1e-6).all()
+        assert 0.5 < float(grown[-1]) / float(plant.frames[-1].total_length()[0]) < 2.0
