@@ -1,4 +1,4 @@
-"""The generative model (SPEC §5): sampler, 4D mean and modes, the bundled model, checkpoints, forecasting."""
+"""The generative model (docs/method.md §5): sampler, 4D mean and modes, the bundled model, checkpoints, forecasting."""
 
 from __future__ import annotations
 

@@ -240,7 +240,7 @@ def test_identities_survive_growth_between_consecutive_frames(kind):
 @pytest.mark.parametrize("kind", ["tomato", "maize", "bean", "almond"])
 def test_library_defaults_keep_identities_between_consecutive_frames(kind):
     """``register_trees(a, b)`` with nothing set, as a user calls it on two days of one plant: children compared by
-    node rank (the default positions) keep organs between frames. Maize fails with the SPEC's warped positions at
+    node rank (the default positions) keep organs between frames. Maize fails with the paper's warped positions at
     the default lp (similar leaves two nodes apart swap: 93.9 % on these 36 pairs)."""
     from torch4dtree.data import score_registration, synthetic_plant
 
@@ -260,7 +260,7 @@ def test_library_defaults_keep_identities_between_consecutive_frames(kind):
 
 def test_library_defaults_keep_maize_identities_across_sparse_frames():
     """Four snapshots over the growth period (a plant doubles between them): with node ranks the default still pairs
-    most maize leaves with themselves (92.0 % measured); the SPEC's warped positions pair the old leaves with the
+    most maize leaves with themselves (92.0 % measured); the paper's warped positions pair the old leaves with the
     new long ones (61.3 %)."""
     from torch4dtree.data import score_registration, synthetic_plant
 
@@ -281,7 +281,7 @@ def test_identities_across_plants_of_a_kind(kind):
     """With the cross-plant settings (:func:`torch4dtree.bench.hierarchy.registration_settings`: children compared
     by node rank, ordered along their parents). Bean needs them: its plants at one calendar day differ by a
     trifoliate, and with positions that move with the stem's warp (or arc length) the metric rather registers the
-    plant ahead one node shifted and turned by 180 degrees (benchmarks/README.md, "Cross-plant identities")."""
+    plant ahead one node shifted and turned by 180 degrees (docs/experiments.md, "Cross-plant identities")."""
     from torch4dtree.bench.hierarchy import registration_settings
     from torch4dtree.data import synthetic_dataset
 

@@ -3,7 +3,7 @@
 ``register_trees`` keeps the index-order solution when it is better, so "never worse than index order"
 holds by construction and proves nothing. Here the optimum itself is checked: on trees small enough to
 enumerate, an independent solver (every monotone lattice path for every branch pair, every partial
-injection of children at every node, the SPEC §3 metric written out) must give the same distance.
+injection of children at every node, the docs/method.md §3 metric written out) must give the same distance.
 
 These check the one-way solver (``symmetric=False``). The symmetric registration (the default) solves each pair
 in one canonical direction and returns the inverse in the other, which is that direction's optimum only in the
@@ -110,7 +110,7 @@ def _lattice_warps() -> torch.Tensor:
 
 
 class BruteForce:
-    """The SPEC §3 tree distance, with each branch warp chosen on the branch pair alone (the paper's choice),
+    """The docs/method.md §3 tree distance, with each branch warp chosen on the branch pair alone (the paper's choice),
     minimised by enumeration: every lattice warp, every partial injection of children at every node."""
 
     def __init__(self, mov: Trees, ref: Trees, lambdas: tuple[float, float, float]) -> None:
@@ -163,7 +163,7 @@ class BruteForce:
 
 def metric_at(mov: Trees, ref: Trees, matches: list[tuple[int, int]], gamma: torch.Tensor,
               lambdas: tuple[float, float, float]) -> float:
-    """The SPEC metric of a given solution (matches, warps of the moving branches), no rotation."""
+    """The docs/method.md §3 metric of a given solution (matches, warps of the moving branches), no rotation."""
     lm, ls, lp = lambdas
     bf = BruteForce(mov, ref, lambdas)
     match = dict(matches)

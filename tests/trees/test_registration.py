@@ -104,7 +104,7 @@ def test_residual_and_warp_error_shrink_as_T_grows(seed):
     """Convergence instead of a loose constant: on a reparameterised copy, the residual distance and the
     warp-recovery error shrink as the grid is refined. On the lattice alone (refine=0, the default) the
     residual does not go to 0 (slopes are ratios of small integers: ~4 % of the tree's norm remain, see
-    benchmarks/README.md), but the warp error still shrinks; with the off-lattice refinement both do."""
+    docs/experiments.md), but the warp error still shrinks; with the off-lattice refinement both do."""
     res = {}
     for Tn in (16, 64, 128):
         A = random_tree(np.random.default_rng(seed), n_side=(3, 5), T=Tn)
@@ -421,7 +421,7 @@ def test_main_branch_start_alone_recovers_an_so3_rotation(seed):
 def test_children_refit_is_skipped_where_the_position_terms_are_negligible(monkeypatch):
     """With lp = 1 on trees in mm the children's parameter terms are far below 1 % of a node's cost: the
     refit must not run there (applied anyway it changed Pheno4D warps for a 1e-4 gain and cost cycle
-    consistency, benchmarks/README.md), so the result equals the refit-free one exactly."""
+    consistency, docs/experiments.md), so the result equals the refit-free one exactly."""
     import torch4dtree.trees.refit as refit
 
     rng = np.random.default_rng(22)

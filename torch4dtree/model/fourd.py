@@ -48,9 +48,8 @@ FORECAST_CALIBRATION_PLANTS = 12
 # plants (0, the 4D mean alone, is among them: the forecast follows the plant only where that predicted held-out ones)
 FORECAST_SHRINK = (0.0, 0.25, 0.5, 0.75, 1.0)
 # forecast analogue term: widths of the kernel on the registered distance from the plant's last observed frame to each
-# training plant at that age, in units of the median squared distance between training plants (1e6: equal weights).
-# Narrower ones (0.05, 0.1) put all weight on one plant; dropped, with the 4D mean's pseudo-plant added, after tomato
-# seed 12 lost 13 % to the mean: it still does (13.5 %), and seeds 3-8 changed within noise (benchmarks/README.md)
+# training plant at that age, in units of the median squared distance between training plants (1e6: equal weights);
+# narrower widths put all weight on one plant (docs/experiments.md)
 FORECAST_WIDTHS = (0.2, 0.5, 1.0, 2.0, 1e6)
 
 

@@ -10,7 +10,7 @@ into the child the rule picks; every other child starts a side branch, decompose
 * ``"straightest"``: the child whose first stretch (a window of arc length) turns least from the
   branch's incoming direction, among children whose subtree is not negligible (spurs); the heaviest
   where there is no incoming direction (at the root). Stems, rachises and shoots run straight through
-  their nodes while leaves and leaflets leave at an angle, whichever is longer today. The window at a
+  their nodes while leaves and leaflets leave at an angle, whichever is longer on that day. The window at a
   branch point is half the length of the side organ leaving there, at least 2 % of the plant's extent
   (:func:`organ_window`).
 
