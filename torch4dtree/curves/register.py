@@ -364,11 +364,8 @@ def dp_warp(q1: Tensor, q2: Tensor, neighbourhood: int = 6, band: int | None = 4
 
     Example:
         >>> import torch
-        >>> from torch4dtree.curves import random_warp
-        >>> s = torch.linspace(0, 1, 16, dtype=torch.float64)
-        >>> x = torch.stack([torch.cos(2 * s), torch.sin(2 * s), s], dim=1)  # a helix arc
-        >>> gamma = random_warp(1, 16, generator=torch.Generator().manual_seed(0), strength=0.5)[0]
-        >>> y = warp_curve(x, gamma)  # the same curve, reparameterised
+        >>> from torch4dtree.data.examples import helix_pair
+        >>> x, y = helix_pair(16)  # a helix arc and the same curve reparameterised
         >>> res = dp_warp(srvf(x), srvf(y))
         >>> before = warp_energy(srvf(x)[None], srvf(y)[None], identity_warp(1, 16))[0]  # the identity warp's
         >>> res.gamma.shape, bool(res.energy < before)
@@ -423,11 +420,8 @@ def register_curves(moving: Tensor, reference: Tensor, rotation: str = "none", s
 
     Example:
         >>> import torch
-        >>> from torch4dtree.curves import random_warp
-        >>> s = torch.linspace(0, 1, 16, dtype=torch.float64)
-        >>> x = torch.stack([torch.cos(2 * s), torch.sin(2 * s), s], dim=1)  # a helix arc
-        >>> gamma = random_warp(1, 16, generator=torch.Generator().manual_seed(0), strength=0.5)[0]
-        >>> y = warp_curve(x, gamma)  # the same curve, reparameterised
+        >>> from torch4dtree.data.examples import helix_pair
+        >>> x, y = helix_pair(16)  # a helix arc and the same curve reparameterised
         >>> r = register_curves(y, x)
         >>> r.gamma.shape, bool(r.energy < 0.01 * r.energy_before)
         (torch.Size([16]), True)
@@ -475,11 +469,8 @@ def elastic_distance(moving: Tensor, reference: Tensor, **kwargs: object) -> Ten
 
     Example:
         >>> import torch
-        >>> from torch4dtree.curves import random_warp
-        >>> s = torch.linspace(0, 1, 16, dtype=torch.float64)
-        >>> x = torch.stack([torch.cos(2 * s), torch.sin(2 * s), s], dim=1)  # a helix arc
-        >>> gamma = random_warp(1, 16, generator=torch.Generator().manual_seed(0), strength=0.5)[0]
-        >>> y = warp_curve(x, gamma)  # the same curve, reparameterised
+        >>> from torch4dtree.data.examples import helix_pair
+        >>> x, y = helix_pair(16)  # a helix arc and the same curve reparameterised
         >>> float(elastic_distance(x, x)) < 1e-6, float(elastic_distance(y, x)) < 0.1
         (True, True)
     """

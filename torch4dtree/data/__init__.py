@@ -6,6 +6,7 @@ dataset folders, :mod:`.truth` scores registrations against their labels, and :m
 ``torch.utils.data.Dataset`` over any dataset folder (imported on its own: it needs ``torch.utils.data``).
 """
 
+from .examples import helix_arc, helix_pair, leaf_pair
 from .synthetic import (
     KINDS,
     SHOOT_OFFSET,
@@ -35,8 +36,8 @@ from .writing import LABEL_SCHEME, read_ground_truth, run_synth, write_dataset, 
 
 __all__ = [
     "KINDS", "LABEL_SCHEME", "SHOOT_OFFSET", "SPUR_LABEL", "STEM_LABEL", "IdentityScores", "SyntheticPlant",
-    "default_times", "evaluate_warp", "identity_scores", "label_layer", "label_organ", "label_parts",
-    "longest_path_organ", "main_branch_organs", "parent_label", "plant_seed", "read_ground_truth", "relative_warp",
-    "run_synth", "sample_growth_warp", "score_registration", "synthetic_dataset", "synthetic_plant",
+    "default_times", "evaluate_warp", "helix_arc", "helix_pair", "identity_scores", "label_layer", "label_organ",
+    "label_parts", "leaf_pair", "longest_path_organ", "main_branch_organs", "parent_label", "plant_seed", "read_ground_truth",
+    "relative_warp", "run_synth", "sample_growth_warp", "score_registration", "synthetic_dataset", "synthetic_plant",
     "write_dataset", "write_skeleton_swc",
 ]

@@ -58,11 +58,8 @@ def map_points(registration: TreeRegistration, branch: Tensor, t: Tensor) -> tup
 
     Example:
         >>> import torch
-        >>> from torch4dtree.trees import Trees
-        >>> t = torch.linspace(0, 1, 8, dtype=torch.float64)[:, None]
-        >>> stem, leaf, bent = (torch.cat(xyz, dim=1) for xyz in ((0 * t, 0 * t, t), (t, 0 * t, 0.5 + 0 * t),
-        ...                                                       (t, 0.3 * t ** 2, 0.6 + 0 * t)))
-        >>> tree, other = (Trees.from_branches([[stem, b]], [[-1, 0]], T=8, dtype=torch.float64) for b in (leaf, bent))
+        >>> from torch4dtree.data.examples import leaf_pair
+        >>> tree, other = leaf_pair(T=8)  # a stem with a straight leaf, and with a bent one
         >>> branch, t_image = map_points(register_trees(other, tree), torch.tensor([1]), torch.tensor([0.5]).double())
         >>> branch.tolist(), t_image.tolist()
         ([1], [0.5])
@@ -166,11 +163,8 @@ def cycle_consistency(a: Trees, b: Trees, eps: Sequence[float] = DEFAULT_EPS,
 
     Example:
         >>> import torch
-        >>> from torch4dtree.trees import Trees
-        >>> t = torch.linspace(0, 1, 8, dtype=torch.float64)[:, None]
-        >>> stem, leaf, bent = (torch.cat(xyz, dim=1) for xyz in ((0 * t, 0 * t, t), (t, 0 * t, 0.5 + 0 * t),
-        ...                                                       (t, 0.3 * t ** 2, 0.6 + 0 * t)))
-        >>> tree, other = (Trees.from_branches([[stem, b]], [[-1, 0]], T=8, dtype=torch.float64) for b in (leaf, bent))
+        >>> from torch4dtree.data.examples import leaf_pair
+        >>> tree, other = leaf_pair(T=8)  # a stem with a straight leaf, and with a bent one
         >>> cc = cycle_consistency(other, tree)
         >>> cc.eps, cc.error.tolist(), cc.unmatched
         ((0.1, 0.05, 0.02, 0.01), [0.0, 0.0, 0.0, 0.0], 0.0)

@@ -43,11 +43,9 @@ def geodesic(registration: TreeRegistration | AlignedTrees, n_steps: int = 5, ep
 
     Example:
         >>> import torch
-        >>> from torch4dtree.trees import Trees, register_trees
-        >>> t = torch.linspace(0, 1, 8, dtype=torch.float64)[:, None]
-        >>> stem, leaf, bent = (torch.cat(xyz, dim=1) for xyz in ((0 * t, 0 * t, t), (t, 0 * t, 0.5 + 0 * t),
-        ...                                                       (t, 0.3 * t ** 2, 0.6 + 0 * t)))
-        >>> tree, other = (Trees.from_branches([[stem, b]], [[-1, 0]], T=8, dtype=torch.float64) for b in (leaf, bent))
+        >>> from torch4dtree.trees import register_trees
+        >>> from torch4dtree.data.examples import leaf_pair
+        >>> tree, other = leaf_pair(T=8)  # a stem with a straight leaf, and with a bent one
         >>> path = geodesic(register_trees(other, tree), n_steps=3)  # other, the midpoint, tree
         >>> path.num_trees, path.num_branches.tolist()
         (3, [2, 2, 2])
