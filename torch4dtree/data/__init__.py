@@ -37,7 +37,7 @@ from .writing import LABEL_SCHEME, read_ground_truth, run_synth, write_dataset, 
 __all__ = [
     "KINDS", "LABEL_SCHEME", "SHOOT_OFFSET", "SPUR_LABEL", "STEM_LABEL", "IdentityScores", "SyntheticPlant",
     "default_times", "evaluate_warp", "helix_arc", "helix_pair", "identity_scores", "label_layer", "label_organ",
-    "label_parts", "leaf_pair", "longest_path_organ", "main_branch_organs", "parent_label", "plant_seed", "read_ground_truth",
-    "relative_warp", "run_synth", "sample_growth_warp", "score_registration", "synthetic_dataset", "synthetic_plant",
-    "write_dataset", "write_skeleton_swc",
+    "label_parts", "leaf_pair", "longest_path_organ", "main_branch_organs", "parent_label", "plant_seed",
+    "read_ground_truth", "relative_warp", "run_synth", "sample_growth_warp", "score_registration",
+    "synthetic_dataset", "synthetic_plant", "write_dataset", "write_skeleton_swc",
 ]
