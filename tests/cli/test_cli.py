@@ -238,7 +238,7 @@ def test_bad_input_is_exit_2_without_the_bug_note(capsys, tmp_path):
     config = tmp_path / "bad.json"
     config.write_text('{"T": 1}')
     assert main(["info", str(bad), "--config", str(config)]) == 2
-    assert "T must be at least 2" in one_line_error(capsys, "info")
+    assert "T must be an integer >= 2" in one_line_error(capsys, "info")
 
 
 @pytest.mark.parametrize("error", [ValueError("an internal check failed"), RuntimeError("an internal check failed"),
