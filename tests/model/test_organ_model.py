@@ -8,6 +8,7 @@ import pytest
 import torch
 
 from torch4dtree.data.synthetic import synthetic_plant
+from torch4dtree.model.checkpoint import load, save_model
 from torch4dtree.model.fourd import sequence_validity
 from torch4dtree.model.organ_forecast import forecast_organs
 from torch4dtree.model.organs import OrganModel
@@ -74,7 +75,9 @@ def test_seeds_reproduce_and_checkpoint_round_trips(model: OrganModel, tmp_path:
     z = model.sample_coefficients(3, torch.Generator().manual_seed(5))
     alone = model.decode(z[1:2])[0]
     assert torch.equal(alone.frames.points, a[1].frames.points)
-    loaded = OrganModel.load(model.save(tmp_path / "organs.pt"))
+    loaded = load(save_model(model, tmp_path / "organs.pt", {"note": "organs"}))
+    assert isinstance(loaded, OrganModel) and loaded.settings == model.settings
+    assert loaded.checkpoint_config == {"note": "organs"}
     c = loaded.sample(3, generator=torch.Generator().manual_seed(5))
     assert all(torch.equal(x.frames.points, y.frames.points) for x, y in zip(a, c))
     assert loaded.keys == model.keys
