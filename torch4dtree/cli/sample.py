@@ -57,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
                            title=f"{args.n} samples, seed {args.seed}")
         written.append(str(save_video(out / f"grid.{args.video}", grid, fps=8, overwrite=args.overwrite)))
     meta = {"model": str(args.model), "seed": args.seed, "n": args.n, "coefficients": z.tolist(),
-            "c": float(model.sampler.c), "decode_seconds": seconds, "names": [s.name for s in samples]}
+            "c": float(model.settings.c), "decode_seconds": seconds, "names": [s.name for s in samples]}
     written.append(str(write_text_safely(out / "samples.json", json.dumps(meta, indent=2), overwrite=args.overwrite)))
     print(f"{args.n} samples in {out} ({seconds:.2f} s to sample and decode)")
     for s in samples:
