@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 import torch
@@ -115,6 +116,12 @@ class OrganModel(nn.Module):
             if name in state_dict:
                 self._buffers[name] = torch.empty_like(state_dict[name])
         return super().load_state_dict(state_dict, strict, assign)
+
+    def save(self, path: str | Path, config: dict[str, Any] | None = None, overwrite: bool = False) -> str:
+        """Write a checkpoint (:func:`torch4dtree.model.save_model`; :func:`torch4dtree.model.load` reads it)."""
+        from .checkpoint import save_model
+
+        return str(save_model(self, path, config, overwrite=overwrite))
 
     @property
     def is_fitted(self) -> bool:
