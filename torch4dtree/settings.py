@@ -144,6 +144,13 @@ def _optional_int(name: str, value: object, low: int) -> int | None:
     return None if value is None else check_at_least(name, value, low)
 
 
+def _positive(name: str, value: object) -> float:
+    """``value`` as a ``float`` if it is a finite number ``> 0``; else a TreeError naming the setting."""
+    if not (_is_number(value) and 0 < value < math.inf):  # type: ignore[operator]
+        raise setting_error(f"{name} must be a positive number, got {value!r}")
+    return float(value)  # type: ignore[arg-type]
+
+
 def settings_from_dict(cls: type, data: Mapping[str, Any], what: str) -> Any:
     """``cls(**data)`` for a settings dataclass, unknown keys rejected by name and a value of the wrong kind as a
     TreeError (``what`` names the settings in the messages).
@@ -385,9 +392,7 @@ class ModelSettings(_PlainDict):
         object.__setattr__(self, "modes", _optional_int("modes", self.modes, 1))
         object.__setattr__(self, "tree_variance", check_share("tree_variance", self.tree_variance))
         object.__setattr__(self, "mode_variance", check_share("mode_variance", self.mode_variance))
-        if not (_is_number(self.c) and 0 < self.c < math.inf):
-            raise setting_error(f"c must be a positive number, got {self.c!r}")
-        object.__setattr__(self, "c", float(self.c))
+        object.__setattr__(self, "c", _positive("c", self.c))
         object.__setattr__(self, "medoid_candidates", check_at_least("medoid_candidates", self.medoid_candidates, 1))
         object.__setattr__(self, "mean_iters", check_at_least("mean_iters", self.mean_iters, 1))
         for name, cls in (("registration", RegistrationSettings), ("cross", CrossSettings),
@@ -451,11 +456,8 @@ class OrganSettings(_PlainDict):
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "n_ages", _optional_int("n_ages", self.n_ages, 2))
-        for name in ("bandwidth", "c"):
-            value = getattr(self, name)
-            if not (_is_number(value) and 0 < value < math.inf):
-                raise setting_error(f"{name} must be a positive number, got {value!r}")
-            object.__setattr__(self, name, float(value))
+        object.__setattr__(self, "bandwidth", _positive("bandwidth", self.bandwidth))
+        object.__setattr__(self, "c", _positive("c", self.c))
         if not (_is_number(self.persistence) and 0 <= self.persistence <= 1):
             raise setting_error(f"persistence must be in [0, 1], got {self.persistence!r}")
         object.__setattr__(self, "persistence", float(self.persistence))
