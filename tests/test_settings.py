@@ -13,6 +13,7 @@ from torch4dtree.config import Config, load_config
 from torch4dtree.settings import (
     CrossSettings,
     ModelSettings,
+    OrganSettings,
     RegistrationSettings,
     TemporalSettings,
 )
@@ -38,6 +39,14 @@ from torch4dtree.trees.structures import TreeError
     (lambda: ModelSettings(registration={"neighbourhood": 4}), "registration"),
     (lambda: ModelSettings.from_dict({"n_tt": 4}), "n_tt"),
     (lambda: ModelSettings.from_dict({"cross": {"lp": 1.0}, "cross_lp": 2.0}), "cross_lp"),
+    (lambda: OrganSettings(n_ages=1), "n_ages"),
+    (lambda: OrganSettings(bandwidth=0), "bandwidth"),
+    (lambda: OrganSettings(persistence=-0.1), "persistence"),
+    (lambda: OrganSettings(jitter=float("inf")), "jitter"),
+    (lambda: OrganSettings(c=0), "c must"),
+    (lambda: OrganSettings(registration={"neighbourhood": 4}), "registration"),
+    (lambda: OrganSettings.from_dict({"bandwith": 1.0}), "bandwith"),
+    (lambda: OrganSettings.from_dict({"registration": {"neighborhood": 4}}), "neighborhood"),
 ])
 def test_bad_values_name_the_setting(make, name):
     with pytest.raises(TreeError, match=name):
@@ -53,6 +62,32 @@ def test_settings_are_frozen_and_round_trip():
     assert ModelSettings.from_dict(d) == s
     with pytest.raises(AttributeError):
         s.n_t = 4  # type: ignore[misc]
+
+
+def test_organ_settings_round_trip():
+    s = OrganSettings(n_ages=5, bandwidth=1, persistence=1, registration=RegistrationSettings(up=[0, 1, 0]))
+    assert (s.bandwidth, s.persistence) == (1.0, 1.0) and isinstance(s.bandwidth, float)
+    d = s.to_dict()
+    assert json.loads(json.dumps(d)) == d
+    assert OrganSettings.from_dict(d) == s and OrganSettings.from_dict({}) == OrganSettings()
+    with pytest.raises(AttributeError):
+        s.jitter = 0.0  # type: ignore[misc]
+
+
+def test_config_chooses_the_model_and_builds_the_organ_settings(tmp_path):
+    assert Config().model == "paper"
+    cfg = Config(model="organs", organ_bandwidth=1.5, organ_persistence=0.5, organ_jitter=0.0, c=2.0,
+                 neighbourhood=6)
+    assert cfg.organ_settings() == OrganSettings(bandwidth=1.5, persistence=0.5, jitter=0.0, c=2.0,
+                                                 registration=RegistrationSettings(neighbourhood=6))
+    path = tmp_path / "c.json"
+    path.write_text(json.dumps(cfg.to_dict()))
+    assert load_config(path) == cfg
+    for bad, name in (({"model": "fancy"}, "model must be one of"), ({"organ_bandwidth": 0}, "organ_bandwidth"),
+                      ({"organ_persistence": 2}, "organ_persistence"), ({"organ_jitter": -1}, "organ_jitter")):
+        path.write_text(json.dumps(bad))
+        with pytest.raises(TreeError, match=name):
+            load_config(path)
 
 
 def test_config_builds_the_settings_and_round_trips(tmp_path):

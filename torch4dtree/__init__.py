@@ -15,7 +15,7 @@ _CURVES = ("curve_length", "dp_warp", "elastic_distance", "inverse_srvf", "regis
            "srvf_sq_norm", "warp_curve", "warp_srvf")
 _TREES = ("AlignedTrees", "TreeError", "TreeSequence", "Trees", "cycle_consistency", "geodesic", "pairwise_distances",
           "register_to_reference", "register_trees")
-_MODEL = ("FourDTreeModel", "load")
+_MODEL = ("FourDTreeModel", "OrganModel", "load")
 _TEMPORAL = ("register4d",)
 # public name -> the subpackage that defines it
 _EXPORTS = {**dict.fromkeys(_CURVES, "curves"), **dict.fromkeys(_TREES, "trees"), **dict.fromkeys(_MODEL, "model"),
@@ -25,10 +25,10 @@ _SUBPACKAGES = ("bench", "cli", "config", "curves", "data", "evaluate", "io", "m
                 "temporal", "trees")
 
 __all__ = [
-    "AlignedTrees", "FourDTreeModel", "TreeError", "TreeSequence", "Trees", "curve_length", "cycle_consistency",
-    "dp_warp", "elastic_distance", "geodesic", "inverse_srvf", "load", "pairwise_distances", "register4d",
-    "register_curves", "register_to_reference", "register_trees", "srvf", "srvf_inner", "srvf_sq_norm", "warp_curve",
-    "warp_srvf",
+    "AlignedTrees", "FourDTreeModel", "OrganModel", "TreeError", "TreeSequence", "Trees", "curve_length",
+    "cycle_consistency", "dp_warp", "elastic_distance", "geodesic", "inverse_srvf", "load", "pairwise_distances",
+    "register4d", "register_curves", "register_to_reference", "register_trees", "srvf", "srvf_inner", "srvf_sq_norm",
+    "warp_curve", "warp_srvf",
 ]
 
 if TYPE_CHECKING:  # what static tools see; at run time __getattr__ imports on demand
@@ -44,7 +44,7 @@ if TYPE_CHECKING:  # what static tools see; at run time __getattr__ imports on d
         warp_curve,
         warp_srvf,
     )
-    from .model import FourDTreeModel, load
+    from .model import FourDTreeModel, OrganModel, load
     from .temporal import register4d
     from .trees import (
         AlignedTrees,

@@ -16,14 +16,17 @@ from .settings import (
     CROSS_LP,
     CROSS_ORDER_TOL,
     CROSS_POSITIONS,
+    DEFAULT_MODEL,
     DEFAULT_NT,
     DEFAULT_POSITIONS,
     DEFAULT_T,
     HIERARCHIES,
+    MODELS,
     POSITIONS,
     ROTATIONS,
     CrossSettings,
     ModelSettings,
+    OrganSettings,
     RegistrationSettings,
     check_at_least,
     check_choice,
@@ -42,13 +45,16 @@ LOAD_SETTINGS = ("T", "max_layers", "min_branch_length", "repair", "hierarchy", 
 class Config:
     """Loading, registration and model settings (docs/method.md §2, §3, §5), one JSON key per field.
 
-    :meth:`registration_settings`, :meth:`cross_settings` and :meth:`model_settings` give the typed settings the
-    functions take.
+    :meth:`registration_settings`, :meth:`cross_settings`, :meth:`model_settings` (the paper's model) and
+    :meth:`organ_settings` (the organ model) give the typed settings the functions take; ``model`` chooses which
+    model ``torch4dtree fit`` fits (:data:`~torch4dtree.settings.MODELS`).
 
     Example:
         >>> cfg = Config(rotation="vertical", cross_lp=None, n_t=8)
         >>> cfg.cross_settings().lp is None, cfg.model_settings().n_t
         (True, 8)
+        >>> Config(model="organs", organ_bandwidth=1.0).organ_settings().bandwidth
+        1.0
         >>> Config(**cfg.to_dict()) == cfg
         True
         >>> Config(cross_positions="fraction")  # doctest: +ELLIPSIS
@@ -75,15 +81,23 @@ class Config:
     cross_positions: str = CROSS_POSITIONS
     cross_lp: float | None = CROSS_LP
     cross_order_tol: float | None = CROSS_ORDER_TOL
-    # the generative model (docs/method.md §5; torch4dtree.model.FourDTreeModel)
+    # the generative model (docs/method.md §5): "paper" (torch4dtree.model.FourDTreeModel) or "organs"
+    # (torch4dtree.model.OrganModel)
+    model: str = DEFAULT_MODEL
+    # the paper's model
     n_t: int = DEFAULT_NT  # common time samples of the trajectories
     tree_components: int | None = None  # tree-PCA components (None: the share tree_variance)
     tree_variance: float = 0.99
     modes: int | None = None  # trajectory-PCA modes (None: the share mode_variance)
     mode_variance: float = 0.95
-    c: float = 3.0  # sampler truncation: coefficients in [-c, c]
+    c: float = 3.0  # sampler truncation (both models): coefficients / latent noise in [-c, c]
     medoid_candidates: int = 3  # candidates for the population's reference 4D tree
     mean_iters: int = 10  # rounds of the 4D Karcher mean
+    # the organ model (settings.OrganSettings): latent kernel width (sd), chance an organ keeps its donor plant,
+    # log-length noise
+    organ_bandwidth: float = OrganSettings.bandwidth
+    organ_persistence: float = OrganSettings.persistence
+    organ_jitter: float = OrganSettings.jitter
     render_size: int = 256  # pixels per cell of the figures and videos
     notes: str = field(default="", compare=False)
 
@@ -105,7 +119,13 @@ class Config:
                 check_at_least(name, getattr(self, name), 1)
         for name in ("tree_variance", "mode_variance"):
             check_share(name, getattr(self, name))
+        check_choice("model", self.model, MODELS)
         self.model_settings()  # the rest (c...) as the model checks it
+        for name in ("bandwidth", "persistence", "jitter"):
+            try:
+                OrganSettings(**{name: getattr(self, f"organ_{name}")})
+            except ValueError as e:  # TreeError is a ValueError
+                raise setting_error(f"organ_{name}: {e}") from None
 
     def registration_settings(self) -> RegistrationSettings:
         """How the tree registrations search (the DP's ``neighbourhood``; the rest default)."""
@@ -122,6 +142,13 @@ class Config:
                              modes=self.modes, mode_variance=self.mode_variance, c=self.c,
                              medoid_candidates=self.medoid_candidates, mean_iters=self.mean_iters,
                              registration=self.registration_settings(), cross=self.cross_settings())
+
+    def organ_settings(self) -> OrganSettings:
+        """The :class:`~torch4dtree.model.OrganModel` settings these give (``c``, the ``organ_*`` keys, the
+        registration search of :meth:`registration_settings`; generated plants as many frames as the training
+        plants' median)."""
+        return OrganSettings(n_ages=None, bandwidth=self.organ_bandwidth, persistence=self.organ_persistence,
+                             jitter=self.organ_jitter, c=self.c, registration=self.registration_settings())
 
     def load_options(self):  # noqa: ANN201 - io.LoadOptions (io imports structures; keep this module light)
         """The :class:`~torch4dtree.io.LoadOptions` with every setting the two share taken from here."""

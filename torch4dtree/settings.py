@@ -7,7 +7,8 @@ Each stage of the pipeline takes its settings as one frozen dataclass, validated
 * :class:`RegistrationSettings`: how a tree registration searches (DP lattice, rotation starts, iterations);
 * :class:`CrossSettings`: how two plants' trees are matched (children's positions, ``lp``, order of children);
 * :class:`TemporalSettings`: the time-warp DP of two trajectories;
-* :class:`ModelSettings`: the generative model, holding the three above.
+* :class:`ModelSettings`: the paper's generative model, holding the three above;
+* :class:`OrganSettings`: the organ-by-organ generative model (:data:`MODELS` names the two).
 
 They travel as plain dicts (``to_dict`` / ``from_dict``) in checkpoints and JSON. The measured reasons for each
 default are in ``docs/method.md`` and ``docs/experiments.md``.
@@ -23,10 +24,10 @@ from typing import Any
 
 __all__ = [
     "CROSS_LP", "CROSS_ORDER_TOL", "CROSS_POSITIONS", "DEFAULT_NT", "DEFAULT_POSITIONS", "DEFAULT_T",
-    "FALLBACK_ROTATION", "HIERARCHIES", "ORDER_TOL", "POSITIONS", "ROTATIONS", "TEMPORAL_BACKENDS",
-    "TEMPORAL_NEIGHBOURHOOD", "TEMPORAL_REFINE", "TIME_WEIGHT", "WITHIN_LAMBDAS", "CrossSettings", "ModelSettings",
-    "RegistrationSettings", "TemporalSettings", "check_at_least", "check_choice", "check_lambdas",
-    "check_optional_number", "check_share", "setting_error", "settings_from_dict",
+    "DEFAULT_MODEL", "FALLBACK_ROTATION", "HIERARCHIES", "MODELS", "ORDER_TOL", "POSITIONS", "ROTATIONS",
+    "TEMPORAL_BACKENDS", "TEMPORAL_NEIGHBOURHOOD", "TEMPORAL_REFINE", "TIME_WEIGHT", "WITHIN_LAMBDAS", "CrossSettings",
+    "ModelSettings", "OrganSettings", "RegistrationSettings", "TemporalSettings", "check_at_least", "check_choice",
+    "check_lambdas", "check_optional_number", "check_share", "setting_error", "settings_from_dict",
 ]
 
 # global rotation searched by a registration: data in one frame, about the up axis, or any (docs/method.md §3)
@@ -60,6 +61,10 @@ TIME_WEIGHT = 1.0
 TEMPORAL_NEIGHBOURHOOD = 4
 TEMPORAL_REFINE = 16
 TEMPORAL_BACKENDS = ("auto", "numba", "torch")
+# the generative models (docs/method.md §5): organ by organ (torch4dtree.model.OrganModel, OrganSettings) or the
+# paper's 4D mean and modes (torch4dtree.model.FourDTreeModel, ModelSettings)
+MODELS = ("organs", "paper")
+DEFAULT_MODEL = "paper"
 
 
 def setting_error(message: str) -> ValueError:
@@ -137,6 +142,13 @@ def check_lambdas(lambdas: Sequence[float], name: str = "lambdas") -> tuple[floa
 
 def _optional_int(name: str, value: object, low: int) -> int | None:
     return None if value is None else check_at_least(name, value, low)
+
+
+def _positive(name: str, value: object) -> float:
+    """``value`` as a ``float`` if it is a finite number ``> 0``; else a TreeError naming the setting."""
+    if not (_is_number(value) and 0 < value < math.inf):  # type: ignore[operator]
+        raise setting_error(f"{name} must be a positive number, got {value!r}")
+    return float(value)  # type: ignore[arg-type]
 
 
 def settings_from_dict(cls: type, data: Mapping[str, Any], what: str) -> Any:
@@ -380,9 +392,7 @@ class ModelSettings(_PlainDict):
         object.__setattr__(self, "modes", _optional_int("modes", self.modes, 1))
         object.__setattr__(self, "tree_variance", check_share("tree_variance", self.tree_variance))
         object.__setattr__(self, "mode_variance", check_share("mode_variance", self.mode_variance))
-        if not (_is_number(self.c) and 0 < self.c < math.inf):
-            raise setting_error(f"c must be a positive number, got {self.c!r}")
-        object.__setattr__(self, "c", float(self.c))
+        object.__setattr__(self, "c", _positive("c", self.c))
         object.__setattr__(self, "medoid_candidates", check_at_least("medoid_candidates", self.medoid_candidates, 1))
         object.__setattr__(self, "mean_iters", check_at_least("mean_iters", self.mean_iters, 1))
         for name, cls in (("registration", RegistrationSettings), ("cross", CrossSettings),
@@ -408,3 +418,67 @@ class ModelSettings(_PlainDict):
             if value is not None:
                 out[name] = stage.from_dict(value)
         return settings_from_dict(cls, {**data, **out}, "model")
+
+
+@dataclass(frozen=True)
+class OrganSettings(_PlainDict):
+    """The organ-by-organ generative model's settings (:class:`~torch4dtree.model.OrganModel`, docs/method.md §5).
+
+    Attributes:
+        n_ages: frames of a generated plant (normalised ages ``linspace(0, 1, n_ages)``); ``None``: the training
+            plants' median number of frames.
+        bandwidth: the kernel's width over the plant latent, in standard deviations (small: samples follow single
+            training plants; large: organs drawn from the whole population regardless of the plant's vigour).
+        persistence: the chance that an organ copies the same training plant as the organ it follows (its previous
+            sibling, or its parent for a first child); otherwise it switches to a plant drawn near the latent. 1
+            copies whole plants, 0 draws every organ afresh.
+        jitter: standard deviation of the log-length noise added to a drawn organ (0.1: about 10 %).
+        c: truncation of the latent's standard normal noise.
+        registration: how each plant's within-sequence registration searches (organ identities over time;
+            :func:`~torch4dtree.temporal.register_sequence`'s ``registration``).
+
+    Example:
+        >>> s = OrganSettings(bandwidth=1.0, registration=RegistrationSettings(neighbourhood=6))
+        >>> OrganSettings.from_dict(s.to_dict()) == s
+        True
+        >>> OrganSettings(persistence=1.5)
+        Traceback (most recent call last):
+        ...
+        torch4dtree.trees.structures.TreeError: persistence must be in [0, 1], got 1.5
+    """
+
+    n_ages: int | None = None
+    bandwidth: float = 0.6
+    persistence: float = 0.7
+    jitter: float = 0.1
+    c: float = 3.0
+    registration: RegistrationSettings = field(default_factory=RegistrationSettings)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "n_ages", _optional_int("n_ages", self.n_ages, 2))
+        object.__setattr__(self, "bandwidth", _positive("bandwidth", self.bandwidth))
+        object.__setattr__(self, "c", _positive("c", self.c))
+        if not (_is_number(self.persistence) and 0 <= self.persistence <= 1):
+            raise setting_error(f"persistence must be in [0, 1], got {self.persistence!r}")
+        object.__setattr__(self, "persistence", float(self.persistence))
+        jitter = check_optional_number("jitter", self.jitter)
+        if jitter is None:
+            raise setting_error("jitter must be a finite number >= 0, got None")
+        object.__setattr__(self, "jitter", jitter)
+        if not isinstance(self.registration, RegistrationSettings):
+            raise setting_error(f"registration must be a RegistrationSettings, got "
+                                f"{type(self.registration).__name__}")
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> OrganSettings:
+        """Settings from :meth:`to_dict`'s dict (``registration`` a nested dict); missing keys default, unknown keys
+        are errors."""
+        if not isinstance(data, Mapping):
+            raise setting_error(f"organ settings must be a mapping, got {type(data).__name__}")
+        data = dict(data)
+        registration = data.pop("registration", None)
+        if registration is not None:
+            data["registration"] = RegistrationSettings.from_dict(registration)
+        return settings_from_dict(cls, data, "organs")
+
+    _what = "organs"

@@ -57,6 +57,17 @@ def test_fit_then_sample(dataset: str, tmp_path) -> None:
     assert main(["sample", str(run / "model.pt"), "--n", "2", "--seed", "3", "--out", str(out2), "--video",
                  "none"]) == 0
     assert (out / "sample_001" / "frame_007.swc").read_text() == (out2 / "sample_001" / "frame_007.swc").read_text()
+    # the forecast of a plant seen over its first two frames
+    from torch4dtree.io import LoadOptions, read_sequence, sequence_folders, write_sequence
+
+    plant = read_sequence(sequence_folders(dataset)[0], LoadOptions(T=12, dtype=torch.float64)).sequence
+    write_sequence(tmp_path / "seen", plant[[0, 1]])
+    until = float(plant.times[-1])
+    assert main(["forecast", str(run / "model.pt"), str(tmp_path / "seen"), "--until", str(until), "--steps", "2",
+                 "--n", "1", "--out", str(tmp_path / "forecast")]) == 0
+    meta = json.loads((tmp_path / "forecast" / "forecast.json").read_text())
+    assert meta["kind"] == "paper" and len(meta["times"]) == 2 and meta["times"][-1] == until
+    assert len(read_sequence(tmp_path / "forecast" / "forecast").sequence) == 2
 
 
 def test_dataset_and_collate(dataset: str) -> None:

@@ -8,6 +8,7 @@ import pytest
 import torch
 
 from torch4dtree.data.synthetic import synthetic_plant
+from torch4dtree.model.checkpoint import CheckpointError, load, save_model
 from torch4dtree.model.fourd import sequence_validity
 from torch4dtree.model.organ_forecast import forecast_organs
 from torch4dtree.model.organs import OrganModel
@@ -74,10 +75,28 @@ def test_seeds_reproduce_and_checkpoint_round_trips(model: OrganModel, tmp_path:
     z = model.sample_coefficients(3, torch.Generator().manual_seed(5))
     alone = model.decode(z[1:2])[0]
     assert torch.equal(alone.frames.points, a[1].frames.points)
-    loaded = OrganModel.load(model.save(tmp_path / "organs.pt"))
+    loaded = load(model.save(tmp_path / "organs.pt", {"note": "organs"}))
+    assert isinstance(loaded, OrganModel) and loaded.settings == model.settings
+    assert loaded.checkpoint_config == {"note": "organs"}
+    raw = torch.load(tmp_path / "organs.pt", weights_only=True)
+    assert raw["format"] == "torch4dtree.OrganModel" and raw["version"] == 1
+    assert raw["args"] == model.settings.to_dict()
     c = loaded.sample(3, generator=torch.Generator().manual_seed(5))
     assert all(torch.equal(x.frames.points, y.frames.points) for x, y in zip(a, c))
     assert loaded.keys == model.keys
+
+
+def test_organ_checkpoints_fail_clearly(model: OrganModel, tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match="not fitted"):
+        save_model(OrganModel(), tmp_path / "empty.pt")
+    with pytest.raises(TypeError, match="OrganModel"):
+        save_model(torch.nn.Linear(2, 2), tmp_path / "linear.pt")  # type: ignore[arg-type]
+    raw = torch.load(save_model(model, tmp_path / "good.pt"), weights_only=True)
+    torch.save({**raw, "args": {"n_t": 8}}, tmp_path / "paper_args.pt")  # the paper model's settings
+    torch.save({**raw, "state_dict": {}}, tmp_path / "no_state.pt")
+    for name in ("paper_args", "no_state"):
+        with pytest.raises(CheckpointError, match=name):
+            load(tmp_path / f"{name}.pt")
 
 
 def test_organs_grow_and_vanish_no_more_than_in_training(model: OrganModel) -> None:

@@ -1,8 +1,11 @@
-"""``torch4dtree fit DATASET --config configs/X --out RUN``: fit the generative model of 4D trees on a dataset folder.
+"""``torch4dtree fit DATASET --config configs/X --out RUN [--model organs|paper]``: fit a generative model of 4D
+trees on a dataset folder.
 
-Writes a new run directory: ``model.pt`` (checkpoint), ``fit.log``, and the report of
-:mod:`torch4dtree.evaluate.model_report` (``report.json`` / ``report.md`` and the figures ``mean.png``,
-``modes.png``, ``samples.png``). Refuses an existing run directory unless ``--overwrite``.
+``--model`` (or the config's ``model``) chooses the paper's :class:`~torch4dtree.model.FourDTreeModel` or the
+organ-by-organ :class:`~torch4dtree.model.OrganModel`. Writes a new run directory: ``model.pt`` (checkpoint),
+``fit.log``, and the report of :mod:`torch4dtree.evaluate.model_report` (``report.json`` / ``report.md`` and the
+figures: ``mean.png``, ``modes.png``, ``samples.png`` for the paper's model, ``samples.png`` for the organ model).
+Refuses an existing run directory unless ``--overwrite``.
 """
 
 from __future__ import annotations
@@ -15,6 +18,7 @@ import shutil
 import time
 from pathlib import Path
 
+from ..settings import MODELS
 from .options import add_config_arguments, config_from_args
 
 
@@ -22,6 +26,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("dataset", help="a dataset folder: one subfolder of frame files (.swc / .mat) per 4D tree")
     p.add_argument("--out", required=True, help="the run directory to create")
     add_config_arguments(p, registration=True)
+    p.add_argument("--model", choices=MODELS, default=None,
+                   help="which generative model: organs (organ by organ) or paper (4D mean and modes); "
+                        "default: the config's model, else paper")
     p.add_argument("--n-t", type=int, default=None,
                    help="common time samples of the trajectories (default: the config's n_t, 32)")
     p.add_argument("--seed", type=int, default=0, help="seed of the sample figure (default 0)")
@@ -49,7 +56,7 @@ def run(args: argparse.Namespace) -> int:
 
     from ..evaluate.model_report import write_model_report
     from ..io import read_sequence, sequence_folders
-    from ..model import FourDTreeModel, save_model
+    from ..model import FourDTreeModel, OrganModel, save_model
 
     out = Path(args.out)
     if out.exists():
@@ -72,10 +79,16 @@ def run(args: argparse.Namespace) -> int:
     seconds["read"] = time.perf_counter() - t0
     log.info("read %d 4D trees (%d frames) in %.2f s", len(seqs), sum(len(s) for s in seqs), seconds["read"])
     t0 = time.perf_counter()
-    model = FourDTreeModel(cfg.model_settings()).fit(seqs, progress=not args.quiet)
-    seconds["fit"] = time.perf_counter() - t0
-    log.info("fitted in %.2f s: %d slots, %d tree components, %d modes", seconds["fit"],
-             model.report_["population"]["slots"], model.population.k, model.n_modes)
+    if cfg.model == "organs":
+        model = OrganModel(cfg.organ_settings()).fit(seqs)
+        seconds["fit"] = time.perf_counter() - t0
+        log.info("fitted the organ model in %.2f s: %d organs at %d botanical keys, %d ages", seconds["fit"],
+                 model.report_["organs"], model.report_["keys"], model.report_["ages"])
+    else:
+        model = FourDTreeModel(cfg.model_settings()).fit(seqs, progress=not args.quiet)
+        seconds["fit"] = time.perf_counter() - t0
+        log.info("fitted the paper's model in %.2f s: %d slots, %d tree components, %d modes", seconds["fit"],
+                 model.report_["population"]["slots"], model.population.k, model.n_modes)
     path = save_model(model, out / "model.pt", cfg.to_dict())
     log.info("wrote %s", path)
     report = write_model_report(model, out, args.dataset, seqs, seconds, figures=not args.no_figures,

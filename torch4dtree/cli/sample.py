@@ -1,8 +1,10 @@
 """``torch4dtree sample RUN/model.pt --n N --seed S --out DIR``: generate 4D trees from a fitted model.
 
-Writes ``DIR/sample_NNN/`` sequence folders (SWC frames + times; branch type = layout slot), one video per sample
-(``DIR/sample_NNN.gif``) and a grid video ``DIR/grid.gif`` (one cell per sample, animated over time), and
-``DIR/samples.json`` (the coefficients).
+Either model (:func:`torch4dtree.model.load` rebuilds the one the checkpoint holds). Writes ``DIR/sample_NNN/``
+sequence folders (SWC frames + times; branch type = the paper model's layout slot, or the organ model's botanical
+key index), one video per sample (``DIR/sample_NNN.gif``) and a grid video ``DIR/grid.gif`` (one cell per sample,
+animated over time), and ``DIR/samples.json`` (the coefficients: the paper model's mode coefficients, the organ
+model's one seed per plant).
 """
 
 from __future__ import annotations
@@ -57,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
                            title=f"{args.n} samples, seed {args.seed}")
         written.append(str(save_video(out / f"grid.{args.video}", grid, fps=8, overwrite=args.overwrite)))
     meta = {"model": str(args.model), "seed": args.seed, "n": args.n, "coefficients": z.tolist(),
-            "c": float(model.sampler.c), "decode_seconds": seconds, "names": [s.name for s in samples]}
+            "c": float(model.settings.c), "decode_seconds": seconds, "names": [s.name for s in samples]}
     written.append(str(write_text_safely(out / "samples.json", json.dumps(meta, indent=2), overwrite=args.overwrite)))
     print(f"{args.n} samples in {out} ({seconds:.2f} s to sample and decode)")
     for s in samples:

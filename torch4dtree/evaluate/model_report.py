@@ -1,7 +1,10 @@
-"""The report of a fitted :class:`~torch4dtree.model.FourDTreeModel` (what ``torch4dtree fit`` writes beside the
-checkpoint): dataset summary, distances before / after each registration stage, variance per mode, reconstruction
-error, timings, and the figures ``mean.png`` (the mean 4D tree over time), ``modes.png`` (the first modes at
--2..+2 sd) and ``samples.png`` (a few samples over time).
+"""The report of a fitted generative model (what ``torch4dtree fit`` writes beside the checkpoint).
+
+For the paper's :class:`~torch4dtree.model.FourDTreeModel`: dataset summary, distances before / after each
+registration stage, variance per mode, reconstruction error, timings, and the figures ``mean.png`` (the mean 4D tree
+over time), ``modes.png`` (the first modes at -2..+2 sd) and ``samples.png`` (a few samples over time). For the
+:class:`~torch4dtree.model.OrganModel` (no mean, no modes): dataset summary, its organ table (plants, botanical
+keys, organs, ages), settings, timings and ``samples.png``.
 """
 
 from __future__ import annotations
@@ -14,12 +17,14 @@ from typing import Any
 
 from .stats import summary
 
-__all__ = ["FIGURE_COLUMNS", "model_report", "model_report_markdown", "time_columns", "write_model_figures",
-           "write_model_report"]
+__all__ = ["FIGURE_COLUMNS", "model_kind", "model_report", "model_report_markdown", "time_columns",
+           "write_model_figures", "write_model_report", "write_sample_figure"]
 
 FIGURE_COLUMNS = 6  # times shown of a 4D tree in a figure row
 MODE_TAUS = (-2.0, -1.0, 0.0, 1.0, 2.0)  # the modes' figure: standard deviations along each mode
 FIGURE_MODES = 3  # modes shown (at most)
+# the markdown's line naming the model (settings.MODELS)
+MODEL_NAMES = {"organs": "organ by organ (OrganModel)", "paper": "the paper's 4D mean and modes (FourDTreeModel)"}
 
 
 def _spread(x: Sequence[float]) -> dict[str, float]:
@@ -28,18 +33,35 @@ def _spread(x: Sequence[float]) -> dict[str, float]:
     return {k: s[k] for k in ("mean", "median", "max")}
 
 
-def model_report(model: Any, dataset: str | Path, seqs: Sequence[Any], seconds: dict[str, float]) -> dict[str, Any]:
-    """The JSON-ready report of ``model`` fitted on ``seqs`` (the 4D trees of folder ``dataset``); ``seconds``: the
-    caller's timings (reading...), added to the fit's own."""
+def model_kind(model: Any) -> str:
+    """``"organs"`` for an :class:`~torch4dtree.model.OrganModel`, ``"paper"`` for a
+    :class:`~torch4dtree.model.FourDTreeModel` (:data:`~torch4dtree.settings.MODELS`)."""
+    from ..model.organs import OrganModel
+
+    return "organs" if isinstance(model, OrganModel) else "paper"
+
+
+def _dataset(dataset: str | Path, seqs: Sequence[Any]) -> dict[str, Any]:
     import torch
 
-    rep = model.report_
-    pop = rep["population"]
     times = torch.cat([s.times for s in seqs])
+    return {"path": str(dataset), "sequences": len(seqs), "names": [s.name for s in seqs],
+            "frames": int(sum(len(s) for s in seqs)), "frames_per_sequence": [len(s) for s in seqs],
+            "time_min": float(times.min()), "time_max": float(times.max())}
+
+
+def model_report(model: Any, dataset: str | Path, seqs: Sequence[Any], seconds: dict[str, float]) -> dict[str, Any]:
+    """The JSON-ready report of ``model`` (either model; ``model`` names which) fitted on ``seqs`` (the 4D trees of
+    folder ``dataset``); ``seconds``: the caller's timings (reading...), added to the fit's own."""
+    rep = model.report_
+    if model_kind(model) == "organs":
+        return {"model": "organs", "dataset": _dataset(dataset, seqs),
+                "organs": {k: rep[k] for k in ("plants", "keys", "organs", "ages")},
+                "settings": model.settings.to_dict(), "seconds": {"fit": rep["seconds"], **seconds}}
+    pop = rep["population"]
     return {
-        "dataset": {"path": str(dataset), "sequences": len(seqs), "names": [s.name for s in seqs],
-                    "frames": int(sum(len(s) for s in seqs)), "frames_per_sequence": [len(s) for s in seqs],
-                    "time_min": float(times.min()), "time_max": float(times.max())},
+        "model": "paper",
+        "dataset": _dataset(dataset, seqs),
         "tree_space": {k: pop[k] for k in ("reference", "slots", "reference_slots", "components",
                                            "variance_explained")},
         "registration": {
@@ -56,12 +78,19 @@ def model_report(model: Any, dataset: str | Path, seqs: Sequence[Any], seconds: 
     }
 
 
-def model_report_markdown(r: dict[str, Any]) -> str:
-    """A :func:`model_report` as Markdown."""
-    d, reg = r["dataset"], r["registration"]
-    lines = [f"# torch4dtree fit: {r['dataset']['path']}", "",
-             f"{d['sequences']} 4D trees, {d['frames']} frames (days {d['time_min']:.4g}..{d['time_max']:.4g}).",
-             f"Layout: {r['tree_space']['slots']} slots; tree PCA {r['tree_space']['components']} components "
+def _organ_markdown(r: dict[str, Any]) -> list[str]:
+    """The body of an :class:`~torch4dtree.model.OrganModel`'s report."""
+    o, st = r["organs"], r["settings"]
+    return [f"Organ table: {o['organs']} organs of {o['plants']} plants at {o['keys']} botanical keys; generated "
+            f"plants have {o['ages']} frames.",
+            f"Settings: bandwidth {st['bandwidth']:g}, persistence {st['persistence']:g}, jitter {st['jitter']:g}, "
+            f"c {st['c']:g}."]
+
+
+def _paper_markdown(r: dict[str, Any]) -> list[str]:
+    """The body of a :class:`~torch4dtree.model.FourDTreeModel`'s report (layout, distances, modes)."""
+    reg = r["registration"]
+    lines = [f"Layout: {r['tree_space']['slots']} slots; tree PCA {r['tree_space']['components']} components "
              f"({100 * r['tree_space']['variance_explained']:.1f} % of the frames' variance); "
              f"reference 4D tree {r['tree_space']['reference']}.", "",
              "## Distances (mean / median / max)", "", "| stage | before | after |", "|---|---|---|"]
@@ -77,7 +106,17 @@ def model_report_markdown(r: dict[str, Any]) -> str:
         lines.append(f"| {i + 1} | {v:.4g} | {100 * s:.1f} % |")
     rec = r["reconstruction"]
     lines += ["", f"Reconstruction of the training plants by the modes (4D distance): mean {rec['mean']:.4g}, "
-              f"max {rec['max']:.4g}.", "", "## Timings (s)", ""]
+              f"max {rec['max']:.4g}."]
+    return lines
+
+
+def model_report_markdown(r: dict[str, Any]) -> str:
+    """A :func:`model_report` as Markdown (reports without ``model`` are the paper's)."""
+    d = r["dataset"]
+    kind = r.get("model", "paper")
+    lines = [f"# torch4dtree fit: {d['path']}", "", f"Model: {MODEL_NAMES[kind]}.", "",
+             f"{d['sequences']} 4D trees, {d['frames']} frames (days {d['time_min']:.4g}..{d['time_max']:.4g}).",
+             *(_organ_markdown(r) if kind == "organs" else _paper_markdown(r)), "", "## Timings (s)", ""]
     lines += [f"* {k}: {v:.3f}" for k, v in r["seconds"].items()]
     if r.get("figures"):
         lines += ["", "## Figures", ""] + [f"![{Path(f).stem}]({Path(f).name})" for f in r["figures"]]
@@ -102,15 +141,30 @@ def _titled(title: str, note: str | None) -> str:
     return f"{title}\n{note}" if note else title
 
 
-def write_model_figures(model: Any, out: Path, size: int, seed: int, n_samples: int = 3, note: str | None = None
-                        ) -> list[str]:
-    """``mean.png``, ``modes.png``, ``samples.png`` in ``out`` (module doc; ``size`` pixels per grid cell, ``seed``
-    of the samples); ``note`` (e.g. what the model was fitted on) is a second title line of each. Returns the
-    paths written."""
+def write_sample_figure(model: Any, out: Path, size: int, seed: int, n_samples: int = 3, note: str | None = None
+                        ) -> str:
+    """``samples.png`` in ``out``: ``n_samples`` samples of ``model`` (either model; ``seed``), one row each, over
+    time in columns (``size`` pixels per cell, ``note`` a second title line). Returns the path written."""
     import torch
 
     from ..render import render_grid, save_image
 
+    samples = model.sample(n_samples, generator=torch.Generator().manual_seed(seed))
+    img = render_grid([time_columns(s) for s in samples], row_labels=[s.name for s in samples],
+                      title=_titled("samples over time", note), size=size, color="label")
+    return str(save_image(out / "samples.png", img))
+
+
+def write_model_figures(model: Any, out: Path, size: int, seed: int, n_samples: int = 3, note: str | None = None
+                        ) -> list[str]:
+    """``mean.png``, ``modes.png``, ``samples.png`` in ``out`` for a :class:`~torch4dtree.model.FourDTreeModel`,
+    ``samples.png`` only for an :class:`~torch4dtree.model.OrganModel` (module doc; ``size`` pixels per grid cell,
+    ``seed`` of the samples); ``note`` (e.g. what the model was fitted on) is a second title line of each. Returns
+    the paths written."""
+    from ..render import render_grid, save_image
+
+    if model_kind(model) == "organs":
+        return [write_sample_figure(model, out, size, seed, n_samples, note)]
     written = []
     mean = model.decode_trajectories(model.mean.trajectory[None].to(model.pca.mean), ["mean"])[0]
     sub = time_columns(mean)
@@ -125,17 +179,15 @@ def write_model_figures(model: Any, out: Path, size: int, seed: int, n_samples: 
     img = render_grid(rows, row_labels=labels, title=_titled("modes of variation (rows) over time (columns)", note),
                       size=size, color="label")
     written.append(str(save_image(out / "modes.png", img)))
-    samples = model.sample(n_samples, generator=torch.Generator().manual_seed(seed))
-    img = render_grid([time_columns(s) for s in samples], row_labels=[s.name for s in samples],
-                      title=_titled("samples over time", note), size=size, color="label")
-    written.append(str(save_image(out / "samples.png", img)))
+    written.append(write_sample_figure(model, out, size, seed, n_samples, note))
     return written
 
 
 def write_model_report(model: Any, out: Path, dataset: str | Path, seqs: Sequence[Any], seconds: dict[str, float],
                        figures: bool = True, size: int = 256, seed: int = 0) -> dict[str, Any]:
-    """Write the figures (with ``figures``), ``report.json`` and ``report.md`` of ``model`` into the folder ``out``
-    (existing files are not replaced); returns the report (:func:`model_report`, with ``figures``: their paths)."""
+    """Write the figures (with ``figures``; :func:`write_model_figures`), ``report.json`` and ``report.md`` of
+    ``model`` (either model) into the folder ``out`` (existing files are not replaced); returns the report
+    (:func:`model_report`, with ``figures``: their paths)."""
     from ..io.files import write_text_safely
 
     report = model_report(model, dataset, seqs, seconds)

@@ -61,14 +61,14 @@ def forecast_organs(model: OrganModel, partial: TreeSequence, n: int = 1, genera
         future[-1] = True
     # the observed organs, each at the last observed frame (a single grid age of 1 is that frame)
     observed = {tuple(o["key"]): o for o in plant_organs(partial, torch.ones(1, dtype=torch.float64),
-                                                         model.args["registration"])}
+                                                         model.settings.registration)}
     total, count = _plant_curves(model)
     x = torch.tensor([sum(o["length"] * float(o["growth"][-1]) for o in observed.values()),
                       float(sum(float(o["growth"][-1]) > 0 for o in observed.values()))], dtype=torch.float64)
     at = [torch.tensor([float(np.interp(u_obs, ages.numpy(), c.numpy())) for c in curve]) for curve in (total, count)]
     feats = torch.stack([a.log1p() for a in at], 1)  # (P, 2)
     scale = feats.std(0).clamp_min(1e-9)
-    w = torch.exp(-0.5 * ((feats - x.log1p()) / scale).square().sum(-1) / model.args["bandwidth"] ** 2)
+    w = torch.exp(-0.5 * ((feats - x.log1p()) / scale).square().sum(-1) / model.settings.bandwidth ** 2)
     w = w / w.sum() if float(w.sum()) > 0 else torch.full_like(w, 1 / len(w))
     j_obs = int((ages - u_obs).abs().argmin())
     has = model.record >= 0
@@ -88,7 +88,7 @@ def forecast_organs(model: OrganModel, partial: TreeSequence, n: int = 1, genera
                 if cond not in donor_of:
                     continue
                 donor = donor_of[cond]
-                if float(torch.rand((), generator=g, dtype=torch.float64)) >= model.args["persistence"]:
+                if float(torch.rand((), generator=g, dtype=torch.float64)) >= model.settings.persistence:
                     donor = int(torch.multinomial(torch.where(has[:, cond], w, torch.zeros_like(w)), 1, generator=g))
             seen = observed.get(key)
             r = int(model.record[donor, k])

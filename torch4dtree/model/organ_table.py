@@ -22,6 +22,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from ..settings import RegistrationSettings
 from ..trees.structures import Trees, TreeSequence
 
 __all__ = ["OrganTable", "azimuth", "organ_table", "plant_organs"]
@@ -77,14 +78,15 @@ def azimuth(curves: Tensor) -> Tensor:
     return torch.atan2(chord[..., horizontal[1]], chord[..., horizontal[0]])
 
 
-def plant_organs(seq: TreeSequence, ages: Tensor, registration: dict | None = None
+def plant_organs(seq: TreeSequence, ages: Tensor, registration: RegistrationSettings | None = None
                  ) -> list[dict[str, object]]:
     """The organs of one 4D tree, keyed by botanical position (module doc).
 
     Args:
         seq: the 4D tree (``n`` frames).
         ages: ``(G,)`` normalised ages at which growth curves are read (linear between frames).
-        registration: keyword arguments of :func:`torch4dtree.temporal.register_sequence`.
+        registration: how the within-sequence registration searches (:func:`torch4dtree.temporal.register_sequence`'s
+            ``registration``; ``None``: the defaults).
 
     Returns:
         One dict per organ, parents first: ``key`` (tuple), ``length`` (float), ``shape (G, T, d)``, ``growth (G,)``,
@@ -96,7 +98,7 @@ def plant_organs(seq: TreeSequence, ages: Tensor, registration: dict | None = No
     n = len(seq)
     if n >= 2:
         aligned = register_sequence(TreeSequence(frames, seq.times.to(torch.float64), seq.name),
-                                    **(registration or {}))
+                                    registration=registration)
         identity = aligned.identity  # (n, S)
         slot_parent = aligned.aligned.slot_parent.tolist()
     else:
@@ -169,7 +171,8 @@ def _nearest_shapes(seen: Tensor, glob: Tensor, frames: Trees, lengths: Tensor, 
     return shape, frames.s[glob[nearest]]
 
 
-def organ_table(sequences: Sequence[TreeSequence], n_ages: int, registration: dict | None = None) -> OrganTable:
+def organ_table(sequences: Sequence[TreeSequence], n_ages: int, registration: RegistrationSettings | None = None
+                ) -> OrganTable:
     """Register every 4D tree within itself and tabulate its organs by botanical key (:class:`OrganTable`).
 
     Example:

@@ -33,12 +33,12 @@ import torch
 from torch import Tensor, nn
 
 from ..curves.srvf import interpolate_curve
+from ..settings import OrganSettings
 from ..trees.structures import Trees, TreeSequence
 from .organ_table import UP, organ_table
 
 __all__ = ["OrganModel", "OrganModelError", "assemble_frames", "rotate_about_up"]
 
-FORMAT = "torch4dtree.OrganModel"
 # the plant latent's features: log total length at the last age, at the middle age, log(1 + organs at the last age)
 LATENT = 3
 # siblings attached closer than this (share of the parent) sit on one node (a whorl, a leaflet pair)
@@ -49,7 +49,7 @@ MIN_LENGTH = 1e-3
 
 
 class OrganModelError(ValueError):
-    """An :class:`OrganModel` used before fitting, or a checkpoint that is not one."""
+    """An :class:`OrganModel` used before fitting, fitted on too few plants, or given a state that is not its own."""
 
 
 def rotate_about_up(x: Tensor, angle: Tensor | float) -> Tensor:
@@ -68,39 +68,28 @@ def rotate_about_up(x: Tensor, angle: Tensor | float) -> Tensor:
 
 
 class OrganModel(nn.Module):
-    """Generative model of 4D trees organ by organ (module doc). Build, then :meth:`fit`, or :meth:`load`.
+    """Generative model of 4D trees organ by organ (module doc). Build, then :meth:`fit`, or
+    :func:`torch4dtree.model.load` a checkpoint written by :func:`torch4dtree.model.save_model`.
 
     Args:
-        n_ages: frames of a generated plant (normalised ages ``linspace(0, 1, n_ages)``); ``None``: the training
-            plants' median number of frames.
-        bandwidth: the kernel's width over the plant latent, in standard deviations (small: samples follow single
-            training plants; large: organs drawn from the whole population regardless of the plant's vigour).
-        persistence: the chance that an organ copies the same training plant as the organ it follows (its previous
-            sibling, or its parent for a first child); otherwise it switches to a plant drawn near the latent. 1
-            copies whole plants, 0 draws every organ afresh (siblings of unrelated plants: ranks along a parent
-            mean different organs in plants with an extra basal organ).
-        jitter: standard deviation of the log-length noise added to a drawn organ (0.1: about 10 %).
-        c: truncation of the latent's standard normal noise.
-        registration: keyword arguments of :func:`torch4dtree.temporal.register_sequence` (organ identities).
+        settings: the model's :class:`~torch4dtree.settings.OrganSettings` (``None``: the defaults): frames of a
+            generated plant, the latent kernel's bandwidth, the donors' persistence, the length jitter, the
+            latent's truncation ``c`` and the within-sequence registration's search.
 
     Example:
         >>> from torch4dtree.data.synthetic import synthetic_plant
         >>> train = [synthetic_plant(kind="bean", seed=i, n_frames=3, T=16).sequence for i in range(3)]
-        >>> model = OrganModel(bandwidth=1.0).fit(train)
+        >>> model = OrganModel(OrganSettings(bandwidth=1.0)).fit(train)
         >>> plants = model.sample(2, generator=torch.Generator().manual_seed(0))
         >>> len(plants), len(plants[0])
         (2, 3)
     """
 
-    def __init__(self, n_ages: int | None = None, bandwidth: float = 0.6, persistence: float = 0.7,
-                 jitter: float = 0.1, c: float = 3.0, registration: dict[str, Any] | None = None) -> None:
+    def __init__(self, settings: OrganSettings | None = None) -> None:
         super().__init__()
-        if not bandwidth > 0 or not 0 <= persistence <= 1 or jitter < 0 or not c > 0:
-            raise ValueError(f"need bandwidth > 0, persistence in [0, 1], jitter >= 0, c > 0; got {bandwidth}, "
-                             f"{persistence}, {jitter}, {c}")
-        self.args = {"n_ages": n_ages, "bandwidth": float(bandwidth), "persistence": float(persistence),
-                     "jitter": float(jitter), "c": float(c),
-                     "registration": dict(registration or {})}
+        if settings is not None and not isinstance(settings, OrganSettings):
+            raise TypeError(f"settings must be an OrganSettings, got {type(settings).__name__}")
+        self.settings = settings if settings is not None else OrganSettings()
         self.keys: list[tuple[int, ...]] = []
         f64, long = torch.float64, torch.long
         for name, dtype in (("key_parent", long), ("key_condition", long), ("record", long), ("log_length", f64),
@@ -128,21 +117,11 @@ class OrganModel(nn.Module):
                 self._buffers[name] = torch.empty_like(state_dict[name])
         return super().load_state_dict(state_dict, strict, assign)
 
-    def save(self, path: str | Path) -> Path:
-        """Write the settings and the fitted buffers to one file (read with :meth:`load`)."""
-        path = Path(path)
-        torch.save({"format": FORMAT, "args": self.args, "state": self.state_dict()}, path)
-        return path
+    def save(self, path: str | Path, config: dict[str, Any] | None = None, overwrite: bool = False) -> str:
+        """Write a checkpoint (:func:`torch4dtree.model.save_model`; :func:`torch4dtree.model.load` reads it)."""
+        from .checkpoint import save_model
 
-    @classmethod
-    def load(cls, path: str | Path) -> OrganModel:
-        """A model written by :meth:`save` (``torch.load(weights_only=True)``)."""
-        data = torch.load(Path(path), map_location="cpu", weights_only=True)
-        if not isinstance(data, dict) or data.get("format") != FORMAT:
-            raise OrganModelError(f"{path} is not an OrganModel checkpoint")
-        model = cls(**data["args"])
-        model.load_state_dict(data["state"])
-        return model
+        return str(save_model(self, path, config, overwrite=overwrite))
 
     @property
     def is_fitted(self) -> bool:
@@ -162,8 +141,8 @@ class OrganModel(nn.Module):
         if len(sequences) < 2:
             raise OrganModelError(f"fit needs at least 2 plants, got {len(sequences)}")
         t0 = time.perf_counter()
-        n_ages = self.args["n_ages"] or int(torch.tensor([len(s) for s in sequences]).median())
-        table = organ_table(sequences, max(n_ages, 2), self.args["registration"])
+        n_ages = self.settings.n_ages or int(torch.tensor([len(s) for s in sequences]).median())
+        table = organ_table(sequences, max(n_ages, 2), self.settings.registration)
         P, K = len(sequences), len(table.keys)
         record = torch.full((P, K), -1, dtype=torch.long)
         record[table.plant, table.key] = torch.arange(len(table.key))
@@ -189,7 +168,7 @@ class OrganModel(nn.Module):
     def check_fitted(self) -> None:
         """Raise :class:`OrganModelError` unless the model is fitted (or loaded)."""
         if not self.is_fitted:
-            raise OrganModelError("OrganModel is not fitted: call fit() or OrganModel.load()")
+            raise OrganModelError("OrganModel is not fitted: call fit() or torch4dtree.model.load() a checkpoint")
 
     # ------------------------------------------------------------------------ sampling
     def sample_coefficients(self, n: int, generator: torch.Generator | None = None) -> Tensor:
@@ -212,15 +191,15 @@ class OrganModel(nn.Module):
         """``(LATENT,) -> (P,)`` the training plants' weights near a plant latent (sum 1)."""
         scale = self.summary.std(0).clamp_min(1e-9)
         d2 = ((latent - self.summary) / scale).square().sum(-1)
-        w = torch.exp(-0.5 * d2 / self.args["bandwidth"] ** 2)
+        w = torch.exp(-0.5 * d2 / self.settings.bandwidth ** 2)
         return w / w.sum() if w.sum() > 0 else torch.full_like(w, 1 / len(w))
 
     def _latent(self, g: torch.Generator) -> Tensor:
         """A plant latent from the training plants' kernel density: one of them, moved by ``bandwidth`` standard
         deviations of Gaussian noise (truncated at ``c``), so every training plant is as likely a neighbour."""
         plant = int(torch.randint(0, len(self.summary), (), generator=g))
-        eps = torch.randn(LATENT, generator=g, dtype=torch.float64).clamp(-self.args["c"], self.args["c"])
-        return self.summary[plant] + self.args["bandwidth"] * self.summary.std(0) * eps
+        eps = torch.randn(LATENT, generator=g, dtype=torch.float64).clamp(-self.settings.c, self.settings.c)
+        return self.summary[plant] + self.settings.bandwidth * self.summary.std(0) * eps
 
     def _grow(self, g: torch.Generator, name: str) -> TreeSequence:
         """One plant: latent, then organs key by key (topology, donors, sizes, rotations), then its frames."""
@@ -240,7 +219,7 @@ class OrganModel(nn.Module):
                 if chosen[cond] < 0:
                     continue
                 donor = int(donor_of[cond])
-                if float(torch.rand((), generator=g, dtype=torch.float64)) >= self.args["persistence"]:
+                if float(torch.rand((), generator=g, dtype=torch.float64)) >= self.settings.persistence:
                     # switch: a plant near the latent among those that have the organ this one follows
                     donor = int(torch.multinomial(torch.where(has[:, cond], w, torch.zeros_like(w)), 1, generator=g))
                 if not has[donor, k]:
@@ -254,7 +233,7 @@ class OrganModel(nn.Module):
                     same = (self.s[r] - self.s[before]).abs() < SAME_NODE
                     s_of[k] = torch.where(same, s_of[cond], self.s[r])
             noise = float(torch.randn((), generator=g, dtype=torch.float64))
-            log_len[k] = self.log_length[r] + self.args["jitter"] * noise
+            log_len[k] = self.log_length[r] + self.settings.jitter * noise
             if k == 0:
                 turn[k] = 2 * math.pi * float(torch.rand((), generator=g, dtype=torch.float64))
             else:
