@@ -75,7 +75,7 @@ def test_organ_settings_round_trip():
 
 
 def test_config_chooses_the_model_and_builds_the_organ_settings(tmp_path):
-    assert Config().model == "paper"
+    assert Config().model == "organs"
     cfg = Config(model="organs", organ_bandwidth=1.5, organ_persistence=0.5, organ_jitter=0.0, c=2.0,
                  neighbourhood=6)
     assert cfg.organ_settings() == OrganSettings(bandwidth=1.5, persistence=0.5, jitter=0.0, c=2.0,

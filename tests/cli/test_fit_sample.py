@@ -22,7 +22,7 @@ def dataset(tmp_path_factory) -> str:
 
 def test_fit_then_sample(dataset: str, tmp_path) -> None:
     cfg = tmp_path / "tiny.json"
-    cfg.write_text(json.dumps({"T": 12, "n_t": 8, "render_size": 64, "medoid_candidates": 1}))
+    cfg.write_text(json.dumps({"model": "paper", "T": 12, "n_t": 8, "render_size": 64, "medoid_candidates": 1}))
     run = tmp_path / "run"
     assert main(["fit", dataset, "--config", str(cfg), "--out", str(run), "--quiet"]) == 0
     for name in ("model.pt", "report.json", "report.md", "fit.log", "mean.png", "modes.png", "samples.png"):
