@@ -13,7 +13,7 @@
 * ``novelty``: on the synthetic set, ``--samples`` samples' ground distances (:mod:`torch4dtree.evaluate.generative`:
   the 4D distance after temporal registration in the model's tree space) to every training plant. The check: no
   sample is closer to a training plant than the median nearest-neighbour distance between training plants / 4.
-  (The same check at T = 16 is `tests/test_model.py::test_samples_are_new_plants_not_copies`.)
+  (The same check at T = 16 is `tests/model/test_model.py::test_samples_are_new_plants_not_copies`.)
 """
 
 from __future__ import annotations

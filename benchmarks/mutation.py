@@ -30,31 +30,34 @@ REPO = Path(__file__).resolve().parents[1]
 
 # module -> pytest arguments (the fast tests that should kill its mutants)
 TESTS: dict[str, list[str]] = {
-    "trees/registration.py": ["tests/test_optimality.py",
-                              "tests/test_registration.py::test_map_points_recovers_known_warps[none-0]",
-                              "tests/test_registration.py::test_invariance_with_default_settings_moderate_warps[14]"],
-    "curves/dp_torch.py": ["tests/test_warping.py::test_dp_is_the_exact_lattice_optimum",
-                           "tests/test_warping.py::test_torch_and_numba_dp_agree_on_rough_pairs[9-6-None-None]",
-                           "tests/test_warping.py::test_torch_and_numba_dp_agree_on_rough_pairs[17-4-2-8]"],
-    "curves/rotation.py": ["tests/test_warping.py", "-k", "(every_rotation_is_proper and numba) or "
+    "trees/solver.py": ["tests/trees/test_optimality.py",
+                        "tests/trees/test_registration.py::test_map_points_recovers_known_warps[none-0]",
+                        "tests/trees/test_registration.py::test_invariance_with_default_settings_moderate_warps[14]"],
+    "curves/dp_torch.py": ["tests/curves/test_warping.py::test_dp_is_the_exact_lattice_optimum",
+                           "tests/curves/test_warping.py::test_torch_and_numba_dp_agree_on_rough_pairs[9-6-None-None]",
+                           "tests/curves/test_warping.py::test_torch_and_numba_dp_agree_on_rough_pairs[17-4-2-8]"],
+    "curves/rotation.py": ["tests/curves/test_warping.py", "-k", "(every_rotation_is_proper and numba) or "
                            "optimal_rotation_is_optimal or invariant_to_random"],
-    "curves/srvf.py": ["tests/test_curves.py", "tests/test_warping.py::test_moving_curve_with_another_number_of_points",
-                       "tests/test_warping.py::test_dp_is_the_exact_lattice_optimum"],
-    "curves/warps.py": ["tests/test_warping.py", "-k", "warp_utilities or lattice_optimum or neighbourhood or proper"],
-    "trees/correspondence.py": ["tests/test_registration.py", "-k",
+    "curves/srvf.py": ["tests/curves/test_curves.py",
+                       "tests/curves/test_warping.py::test_moving_curve_with_another_number_of_points",
+                       "tests/curves/test_warping.py::test_dp_is_the_exact_lattice_optimum"],
+    "curves/warps.py": ["tests/curves/test_warping.py", "-k",
+                        "warp_utilities or lattice_optimum or neighbourhood or proper"],
+    "trees/correspondence.py": ["tests/trees/test_registration.py", "-k",
                                 "map_points or (invariance_to_rotation and none and 1)"],
-    "trees/aligned.py": ["tests/test_optimality.py", "tests/test_geodesic.py", "tests/test_registration.py", "-k",
+    "trees/aligned.py": ["tests/trees/test_optimality.py", "tests/trees/test_geodesic.py",
+                         "tests/trees/test_registration.py", "-k",
                          "not pheno4d and not synthetic and not cli and not pairwise and not invariance and not "
                          "residual and not map_points and not benchmarks"],
-    "curves/register.py": ["tests/test_warping.py", "-k",
+    "curves/register.py": ["tests/curves/test_warping.py", "-k",
                            "lattice_optimum or agree_on_rough_pairs or identity_pair or recovers or moving_curve or "
                            "invariant or (proper and numba)"],
-    "curves/dp_numba.py": ["tests/test_warping.py::test_dp_is_the_exact_lattice_optimum",
-                           "tests/test_optimality.py::test_the_lattice_is_what_brute_force_enumerates",
-                           "tests/test_warping.py::test_torch_and_numba_dp_agree_on_rough_pairs[9-6-None-None]",
-                           "tests/test_warping.py::test_every_rotation_is_proper[so3-numba]"],
+    "curves/kernels_numba.py": ["tests/curves/test_warping.py::test_dp_is_the_exact_lattice_optimum",
+                           "tests/trees/test_optimality.py::test_the_lattice_is_what_brute_force_enumerates",
+                           "tests/curves/test_warping.py::test_torch_and_numba_dp_agree_on_rough_pairs[9-6-None-None]",
+                           "tests/curves/test_warping.py::test_every_rotation_is_proper[so3-numba]"],
 }
-NO_JIT = {"curves/dp_numba.py", "curves/refinement.py"}
+NO_JIT = {"curves/kernels_numba.py", "curves/refinement.py"}
 
 
 def mutants(path: Path) -> list[tuple[object, str]]:

@@ -64,7 +64,8 @@ TEMPORAL_BACKENDS = ("auto", "numba", "torch")
 # the generative models (docs/method.md §5): organ by organ (torch4dtree.model.OrganModel, OrganSettings) or the
 # paper's 4D mean and modes (torch4dtree.model.FourDTreeModel, ModelSettings)
 MODELS = ("organs", "paper")
-DEFAULT_MODEL = "organs"  # samples beside held-out plants: morphometric 1-NNA 0.52-0.68 vs 0.92-1.00 (docs/experiments.md)
+# samples beside held-out plants: morphometric 1-NNA 0.52-0.68 against 0.92-1.00 (docs/experiments.md, E)
+DEFAULT_MODEL = "organs"
 
 
 def setting_error(message: str) -> ValueError:

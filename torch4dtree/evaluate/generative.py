@@ -61,7 +61,7 @@ extended coordinates; not re-registered decoded skeletons, which would cost a tr
 the forecast and the plant's frames as encoded from its whole sequence. Baselines: the last observed frame stays
 (in the same whole-sequence encoding as the truth, off-PCA part included, so the baseline pays no encoding noise)
 and the population's 4D mean at the same age (time since the first frame over the training plants' mean duration).
-The same errors in tree-PCA coordinates only (as ``tests/test_model.py``) are reported beside them.
+The same errors in tree-PCA coordinates only (as ``tests/model/test_model.py``) are reported beside them.
 
 **Timings**: fit, the 4D mean (paper: 0.0006 s for averaging plants already co-registered; ours with its
 temporal registrations, timed warm as refits of the fold's mean), samples per second from coefficients to
