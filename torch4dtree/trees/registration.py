@@ -29,7 +29,14 @@ from torch import Tensor
 
 from ..curves.rotation import check_rotation_mode
 from ..curves.srvf import srvf, warp_srvf
-from ..settings import DEFAULT_POSITIONS, ORDER_TOL, POSITIONS, check_choice, check_lambdas
+from ..settings import (
+    DEFAULT_POSITIONS,
+    ORDER_TOL,
+    POSITIONS,
+    RegistrationSettings,
+    check_choice,
+    check_lambdas,
+)
 from .aligned import AlignedTrees, Lambdas
 from .pairwise import pairwise_distances
 from .prepare import PreparedTree, child_positions, prepare_tree
@@ -224,11 +231,16 @@ def effective_lambdas(lambdas: Sequence[float], reference: Trees, moving: Trees 
     return lm, ls, lp * RELATIVE_LP_SCALE * length
 
 
+_SEARCH = RegistrationSettings()  # the search defaults, one source for this signature and the settings dataclass
+
+
 def register_to_reference(trees: Trees, reference: Trees, lambdas: Sequence[float] = (1.0, 1.0, 1.0),
-                          rotation: str = "none", up: Sequence[float] | Tensor | None = None, n_starts: int = 12,
-                          max_iters: int = 10, tol: float = 1e-3, neighbourhood: int = 4, band: int | None = None,
-                          coarse: int | None = 32, refine: int = 0, prune: bool = True,
-                          lp_relative: bool = True, positions: str = DEFAULT_POSITIONS, order_tol: float | None = None,
+                          rotation: str = "none", up: Sequence[float] | Tensor | None = None,
+                          n_starts: int = _SEARCH.n_starts, max_iters: int = _SEARCH.max_iters,
+                          tol: float = _SEARCH.tol, neighbourhood: int = _SEARCH.neighbourhood,
+                          band: int | None = _SEARCH.band, coarse: int | None = _SEARCH.coarse,
+                          refine: int = _SEARCH.refine, prune: bool = _SEARCH.prune, lp_relative: bool = True,
+                          positions: str = DEFAULT_POSITIONS, order_tol: float | None = None,
                           symmetric: bool = True) -> list[TreeRegistration]:
     """Register every tree of ``trees`` (moving) onto the single tree ``reference``, all at once
     (docs/method.md §3). Every depth of every registration (and every rotation start) shares one batched DP call.
