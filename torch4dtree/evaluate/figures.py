@@ -202,7 +202,7 @@ def _model_figures(data: EvalData, settings: EvalSettings, lay: FigureLayout, ou
     model = FourDTreeModel(settings.model_settings(lay.n_t))
     model.fit([p.sequence for p in plants])
     note = f"fitted on {len(plants)} {kind} plants ({data.source}), {model.n_modes} modes, n_t = {lay.n_t}"
-    return write_model_figures(model, out, lay.cell, settings.seed, note=note)
+    return write_model_figures(model, out, lay.cell, settings.seed, note=note, real=[p.sequence for p in plants])
 
 
 # ------------------------------------------------------------------------------------- driver

@@ -17,7 +17,7 @@ from typing import Any
 
 from .stats import summary
 
-__all__ = ["FIGURE_COLUMNS", "model_kind", "model_report", "model_report_markdown", "time_columns",
+__all__ = ["FIGURE_COLUMNS", "age_columns", "model_kind", "model_report", "model_report_markdown", "time_columns",
            "write_model_figures", "write_model_report", "write_sample_figure"]
 
 FIGURE_COLUMNS = 6  # times shown of a 4D tree in a figure row
@@ -137,34 +137,58 @@ def time_columns(seq: Any, columns: int = FIGURE_COLUMNS) -> Any:
     return seq[idx]
 
 
+def age_columns(seq: Any, columns: int = FIGURE_COLUMNS) -> Any:
+    """The frames of a 4D tree nearest to ``columns`` evenly spaced normalised ages (``(t - t_first) / (t_last -
+    t_first)``), so that rows of plants scanned on different days show the same ages; repeated frames are dropped.
+
+    Example:
+        >>> from torch4dtree.data import synthetic_plant
+        >>> seq = synthetic_plant("maize", seed=0, n_frames=6, T=8).sequence
+        >>> len(age_columns(seq, 3)), bool(age_columns(seq, 3).times[-1] == seq.times[-1])
+        (3, True)
+    """
+    import torch
+
+    t = seq.times.to(torch.float64)
+    span = float(t[-1] - t[0])
+    age = (t - t[0]) / span if span > 0 else torch.zeros_like(t)
+    idx = sorted({int((age - j / max(columns - 1, 1)).abs().argmin()) for j in range(columns)})
+    return seq[idx]
+
+
 def _titled(title: str, note: str | None) -> str:
     return f"{title}\n{note}" if note else title
 
 
-def write_sample_figure(model: Any, out: Path, size: int, seed: int, n_samples: int = 3, note: str | None = None
-                        ) -> str:
-    """``samples.png`` in ``out``: ``n_samples`` samples of ``model`` (either model; ``seed``), one row each, over
-    time in columns (``size`` pixels per cell, ``note`` a second title line). Returns the path written."""
+def write_sample_figure(model: Any, out: Path, size: int, seed: int, n_samples: int = 3, note: str | None = None,
+                        real: Sequence[Any] = ()) -> str:
+    """``samples.png`` in ``out``: ``n_samples`` samples of ``model`` (either model; ``seed``), one row each, and
+    below them up to as many ``real`` plants (e.g. the training plants), all at the same normalised ages in columns
+    (:func:`age_columns`) and at one scale, so a reader can tell whether the samples look like the real plants
+    (``size`` pixels per cell, ``note`` a second title line). Returns the path written."""
     import torch
 
     from ..render import render_grid, save_image
 
     samples = model.sample(n_samples, generator=torch.Generator().manual_seed(seed))
-    img = render_grid([time_columns(s) for s in samples], row_labels=[s.name for s in samples],
-                      title=_titled("samples over time", note), size=size, color="label")
+    shown = list(real)[:n_samples]
+    title = "samples (top) and real plants (bottom) at the same ages, one scale" if shown else "samples over time"
+    img = render_grid([age_columns(s) for s in [*samples, *shown]],
+                      row_labels=[s.name for s in samples] + [f"real: {s.name}" for s in shown],
+                      title=_titled(title, note), size=size, color="layer" if shown else "label")  # alike
     return str(save_image(out / "samples.png", img))
 
 
-def write_model_figures(model: Any, out: Path, size: int, seed: int, n_samples: int = 3, note: str | None = None
-                        ) -> list[str]:
+def write_model_figures(model: Any, out: Path, size: int, seed: int, n_samples: int = 3, note: str | None = None,
+                        real: Sequence[Any] = ()) -> list[str]:
     """``mean.png``, ``modes.png``, ``samples.png`` in ``out`` for a :class:`~torch4dtree.model.FourDTreeModel`,
     ``samples.png`` only for an :class:`~torch4dtree.model.OrganModel` (module doc; ``size`` pixels per grid cell,
     ``seed`` of the samples); ``note`` (e.g. what the model was fitted on) is a second title line of each. Returns
-    the paths written."""
+    the paths written. ``real`` plants are shown below the samples (:func:`write_sample_figure`)."""
     from ..render import render_grid, save_image
 
     if model_kind(model) == "organs":
-        return [write_sample_figure(model, out, size, seed, n_samples, note)]
+        return [write_sample_figure(model, out, size, seed, n_samples, note, real)]
     written = []
     mean = model.decode_trajectories(model.mean.trajectory[None].to(model.pca.mean), ["mean"])[0]
     sub = time_columns(mean)
@@ -179,7 +203,7 @@ def write_model_figures(model: Any, out: Path, size: int, seed: int, n_samples: 
     img = render_grid(rows, row_labels=labels, title=_titled("modes of variation (rows) over time (columns)", note),
                       size=size, color="label")
     written.append(str(save_image(out / "modes.png", img)))
-    written.append(write_sample_figure(model, out, size, seed, n_samples, note))
+    written.append(write_sample_figure(model, out, size, seed, n_samples, note, real))
     return written
 
 
@@ -193,7 +217,7 @@ def write_model_report(model: Any, out: Path, dataset: str | Path, seqs: Sequenc
     report = model_report(model, dataset, seqs, seconds)
     if figures:
         t0 = time.perf_counter()
-        report["figures"] = write_model_figures(model, out, size, seed)
+        report["figures"] = write_model_figures(model, out, size, seed, real=seqs)
         report["seconds"]["figures"] = time.perf_counter() - t0
     write_text_safely(out / "report.json", json.dumps(report, indent=2))
     write_text_safely(out / "report.md", model_report_markdown(report))
