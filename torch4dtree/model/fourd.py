@@ -22,7 +22,7 @@ from typing import Any, NamedTuple
 import torch
 from torch import Tensor, nn
 
-from ..parallel import run_tasks
+from ..parallel import move, run_tasks
 from ..settings import ModelSettings
 from ..space.fitted import NotFittedError
 from ..space.pca import principal_axes, variance_components
@@ -403,7 +403,7 @@ class FourDTreeModel(nn.Module):
         what is shipped to workers (:meth:`encode_many`)."""
         self._check_fitted()
         copy = FourDTreeModel(self.settings)
-        copy.load_state_dict({k: v.detach().cpu() for k, v in self.state_dict().items()})
+        copy.load_state_dict(move(self.state_dict(), "cpu"))
         return copy
 
     def encode_many(self, sequences: Sequence[TreeSequence], executor: Executor | None = None) -> Tensor:

@@ -117,7 +117,7 @@ def run_pieces(shape: tuple[int, int], count: int, task: Callable[[int], tuple[C
         if on_piece is not None:
             on_piece(k, pairs)
 
-    run_tasks(_call, [task(k) for k in todo], executor, done=store)
+    run_tasks(_call, (task(k) for k in todo), executor, done=store, keep=False)
     return matrix
 
 

@@ -38,7 +38,7 @@ from typing import Any, NamedTuple
 import torch
 from torch import Tensor
 
-from ..parallel import run_tasks
+from ..parallel import move, run_tasks
 from ..settings import (
     DEFAULT_NT,
     ROTATIONS,
@@ -321,7 +321,7 @@ class Population(FittedModule):
         what is shipped to workers to write new plants in the space (:meth:`transform_many`)."""
         self._check_fitted()
         copy = Population(cross=self.cross)
-        copy.load_state_dict({k: v.detach().cpu() for k, v in self.state_dict().items()})
+        copy.load_state_dict(move(self.state_dict(), "cpu"))
         return copy
 
     def transform_many(self, sequences: Sequence[TreeSequence], executor: Executor | None = None
