@@ -62,3 +62,49 @@ def test_move_rebuilds_containers():
     assert y["b"] == (1, "s") and torch.equal(y["a"][0], x["a"][0])
     tree = move(stems(2), "cpu")
     assert isinstance(tree, Trees) and tree.num_trees == 2
+
+
+class FakeRay:
+    """The part of Ray's API the adapter uses: init, remote functions whose calls give object references with a
+    ``future()``, shutdown."""
+
+    def __init__(self) -> None:
+        self.address, self.down = "unset", False
+
+    def init(self, address=None, ignore_reinit_error=False):
+        self.address = address
+
+    def remote(self, fn):
+        from concurrent.futures import Future
+
+        class Ref:
+            def __init__(self, value):
+                self.value = value
+
+            def future(self):
+                f = Future()
+                f.set_result(self.value)
+                return f
+
+        class Remote:
+            def remote(self, *args, **kwargs):
+                return Ref(fn(*args, **kwargs))
+
+        return Remote()
+
+    def shutdown(self):
+        self.down = True
+
+
+def test_the_ray_adapter_on_a_stand_in(monkeypatch):
+    fake = FakeRay()
+    monkeypatch.setitem(sys.modules, "ray", fake)
+    with make_executor(scheduler="ray://head:10001") as ex:
+        assert fake.address == "ray://head:10001"
+        assert run_tasks(divmod, [(7, 2)], ex) == [(3, 1)]
+        assert torch.equal(pairwise_distances(stems(3), executor=ex, progress=False),
+                           pairwise_distances(stems(3), processes=1, progress=False))
+    assert fake.down
+    monkeypatch.setitem(sys.modules, "ray", None)
+    with pytest.raises(ImportError, match="pip install ray"):
+        make_executor(scheduler="ray")

@@ -117,7 +117,8 @@ def add_executor_arguments(parser: argparse.ArgumentParser) -> None:
                        help="run the heavy steps on N local worker processes (default: in this process)")
     group.add_argument("--scheduler", default=None, metavar="ADDRESS",
                        help="run them on the Dask cluster of this scheduler (e.g. tcp://host:8786; needs "
-                            "pip install torch4dtree[distributed])")
+                            "pip install torch4dtree[distributed]), or on Ray (ray, ray://host:10001) "
+                            "(default: none)")
 
 
 def executor_from_args(args: argparse.Namespace) -> AbstractContextManager:

@@ -15,7 +15,8 @@ from collections.abc import Callable
 from concurrent.futures import Executor, Future, ProcessPoolExecutor
 from typing import Any
 
-__all__ = ["DISTRIBUTED_HINT", "InlineExecutor", "check_executor", "local_executor", "make_executor", "single_thread"]
+__all__ = ["DISTRIBUTED_HINT", "DaskExecutor", "InlineExecutor", "RayExecutor", "check_executor", "local_executor",
+           "make_executor", "single_thread"]
 
 DISTRIBUTED_HINT = "pip install torch4dtree[distributed]"
 
@@ -81,19 +82,47 @@ class DaskExecutor(Executor):
         self.client.close()
 
 
+class RayExecutor(Executor):
+    """Tasks as Ray remote calls (``ray.init(address)``; a crashed worker's task is retried, Ray's
+    ``max_retries``). Each ``submit`` returns the ``concurrent.futures.Future`` of the call's object reference.
+    Needs ``pip install ray`` (not an extra of this package: the tests run on Dask)."""
+
+    def __init__(self, address: str | None = None) -> None:
+        try:
+            import ray
+        except ImportError as e:
+            raise ImportError("a Ray cluster needs ray: pip install ray") from e
+        ray.init(address=address, ignore_reinit_error=True)
+        self._ray, self._call = ray, ray.remote(_call)
+
+    def submit(self, fn: Callable[..., Any], /, *args: Any, **kwargs: Any) -> Future:  # noqa: ANN401
+        return self._call.remote(fn, *args, **kwargs).future()
+
+    def shutdown(self, wait: bool = True, *, cancel_futures: bool = False) -> None:
+        self._ray.shutdown()
+
+
+def _call(fn: Callable[..., Any], *args: Any, **kwargs: Any) -> Any:  # noqa: ANN401
+    """A Ray task running ``fn(*args, **kwargs)`` (Ray's remote functions are wrapped functions)."""
+    return fn(*args, **kwargs)
+
+
 def make_executor(workers: int | None = None, scheduler: str | None = None) -> Executor:
     """The executor for ``workers`` local processes or a Dask scheduler; use it as a context manager.
 
     Args:
         workers: ``None`` or 1: :class:`InlineExecutor` (no processes); ``N > 1``: :func:`local_executor` of ``N``.
         scheduler: a Dask scheduler address (``"tcp://host:8786"``): its cluster's workers run the tasks
-            (``workers`` is then ignored). Needs ``pip install torch4dtree[distributed]``.
+            (``workers`` is then ignored). Needs ``pip install torch4dtree[distributed]``. ``"ray"`` (this machine's
+            Ray cluster) or a ``"ray://host:10001"`` address: :class:`RayExecutor`.
 
     Example:
         >>> with make_executor() as ex:
         ...     list(ex.map(len, ["ab", "c"]))
         [2, 1]
     """
+    if scheduler is not None and (scheduler == "ray" or scheduler.startswith("ray://")):
+        return RayExecutor(None if scheduler == "ray" else scheduler)
     if scheduler is not None:
         try:
             from distributed import Client

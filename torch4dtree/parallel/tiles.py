@@ -3,10 +3,11 @@
 Two ways to cut the pairs into tasks:
 
 * :func:`tiled_matrix`: ``tile x tile`` blocks (``TILE = 64``: 4,096 pairs a task amortise the scheduling and a
-  worker holds only ``2 x tile`` items); a symmetric matrix (zero diagonal) computes only the blocks on and above
-  the diagonal, each pair ``i < j`` once, and mirrors them. For functions whose value of a pair does not depend on
-  which pairs share its batch (the batched tree registrations: checked in ``tests/parallel``), the matrix is then
-  that of the serial computation, whatever the tiling or executor.
+  worker holds only ``2 x tile`` items; smaller tiles for small matrices, :func:`default_tile`); a symmetric
+  matrix (zero diagonal) computes only the blocks on and above the diagonal, each pair ``i < j`` once, and mirrors
+  them. For functions whose value of a pair does not depend on which pairs share its batch (the batched tree
+  registrations: checked in ``tests/parallel``), the matrix is then that of the serial computation, whatever the
+  tiling or executor.
 * :func:`pair_matrix`: consecutive pieces of a fixed pair list (cheap pairs such as trajectories, whose batched
   solver may give a pair other last bits in another batch): the pieces are the serial computation's own batches.
 
@@ -31,15 +32,29 @@ from torch import Tensor
 
 from .tasks import run_tasks
 
-__all__ = ["PAIR_CHUNK", "TILE", "TileRecordError", "pair_matrix", "run_pieces", "tile_blocks", "tiled_matrix"]
+__all__ = ["MIN_BLOCKS", "PAIR_CHUNK", "TILE", "TileRecordError", "default_tile", "pair_matrix", "run_pieces",
+           "tile_blocks", "tiled_matrix"]
 
 TILE = 64
+# below 8 x TILE items a side, tiles shrink so a side still has this many blocks (36 tasks on and above the
+# diagonal): a few workers stay busy on small matrices
+MIN_BLOCKS = 8
 PAIR_CHUNK = 2048  # pairs a task of pair_matrix (cheap pairs: trajectories)
 MATRIX, RECORD, DONE = "distances.npy", "tiles.json", "done.npy"
 
 
 class TileRecordError(ValueError):
     """A tile folder that cannot be resumed: unreadable, or written for other inputs, settings or tiles."""
+
+
+def default_tile(n: int) -> int:
+    """The tile size for ``n`` items a side: ``TILE``, or smaller so that a side has ``MIN_BLOCKS`` blocks.
+
+    Example:
+        >>> default_tile(30), default_tile(100), default_tile(10_000)
+        (4, 13, 64)
+    """
+    return max(1, min(TILE, -(-n // MIN_BLOCKS)))
 
 
 def tile_blocks(n: int, m: int, tile: int, symmetric: bool) -> list[tuple[int, int]]:
@@ -122,12 +137,14 @@ def run_pieces(shape: tuple[int, int], count: int, task: Callable[[int], tuple[C
 
 
 def tiled_matrix(shape: tuple[int, int], task: Callable[[int, int, int, int], tuple[Callable[..., Any], tuple]],
-                 symmetric: bool, tile: int = TILE, executor: Executor | None = None, path: str | Path | None = None,
+                 symmetric: bool, tile: int | None = None, executor: Executor | None = None,
+                 path: str | Path | None = None,
                  fingerprint: str = "", on_tile: Callable[[int, int, int], None] | None = None) -> np.ndarray:
     """The ``shape`` float64 matrix computed block by block (module doc).
 
     ``task(i0, i1, j0, j1)`` returns ``(fn, args)``: ``fn(*args)`` (top-level, run on ``executor``) gives the block
     ``[i0:i1, j0:j1]`` as an array; in a ``symmetric`` matrix only its entries above the diagonal are kept.
+    ``tile``: the block side (default :func:`default_tile` of the larger side).
     ``path``: resumable folder (module doc), checked against ``fingerprint`` (a string identifying the inputs and
     settings). ``on_tile(block_row, block_col, pairs)`` is called after each block is stored (progress; raising
     there interrupts the run, which resumes later). Returns the matrix (a memory map of the folder with ``path``).
@@ -141,6 +158,7 @@ def tiled_matrix(shape: tuple[int, int], task: Callable[[int, int, int, int], tu
     n, m = shape
     if symmetric and n != m:
         raise ValueError(f"a symmetric matrix is square, got {shape}")
+    tile = default_tile(max(n, m)) if tile is None else tile
     blocks = tile_blocks(n, m, tile, symmetric)
 
     def bounds(k: int) -> tuple[int, int, int, int]:

@@ -33,6 +33,7 @@ from __future__ import annotations
 import time
 from collections.abc import Sequence
 from concurrent.futures import Executor
+from functools import partial
 from typing import Any, NamedTuple
 
 import torch
@@ -61,7 +62,7 @@ from .spatiotemporal import (
     representative_tree,
 )
 from .trajectory import resample_trajectory
-from .within import AlignedSequence, register_sequence, within_registration
+from .within import AlignedSequence, register_sequence
 
 __all__ = ["Population", "SequenceEncoding", "cross_registration", "fit_population", "transform_sequence"]
 
@@ -231,8 +232,8 @@ class Population(FittedModule):
         # young frames need it); the space's metric ``lam`` applies from the union layout on
         device = seqs[0].frames.points.device
         with tqdm(total=len(seqs), disable=not progress, desc="within-sequence registration", unit="plant") as bar:
-            aseqs = run_tasks(within_registration, [(s, self.registration) for s in seqs], executor, device,
-                              lambda i, r: bar.update())
+            within = partial(register_sequence, progress=False, registration=self.registration)
+            aseqs = run_tasks(within, [(s,) for s in seqs], executor, device, lambda i, r: bar.update())
         seconds["within_sequence"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         reps = [representative_tree(a) for a in aseqs]

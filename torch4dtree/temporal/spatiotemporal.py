@@ -41,6 +41,7 @@ from __future__ import annotations
 import time
 from collections.abc import Sequence
 from concurrent.futures import Executor
+from functools import partial
 from typing import NamedTuple
 
 import torch
@@ -67,7 +68,7 @@ from ..trees.registration import effective_lambdas, index_order_matches
 from ..trees.structures import Trees, TreeSequence
 from .registration import TemporalRegistration, geodesic4d, trajectory_distance
 from .trajectory import fine_size, resample_trajectory, trajectory_srvf
-from .within import AlignedSequence, inverse_at, register_sequence, within_registration
+from .within import AlignedSequence, inverse_at, register_sequence
 
 __all__ = ["SpatiotemporalRegistration", "combine_many", "combine_sequences", "fourd_warps", "grow_union",
            "layout_trajectories", "open_slots", "place_sequence", "register4d", "representative_tree"]
@@ -448,7 +449,8 @@ def register4d(reference: TreeSequence | AlignedSequence, moving: TreeSequence |
         for i in todo:
             seqs[i] = register_sequence(seqs[i].to(torch.float64), progress=progress, registration=search)
     else:
-        done = run_tasks(within_registration, [(seqs[i].to(torch.float64), search) for i in todo], executor,
+        within = partial(register_sequence, progress=False, registration=search)
+        done = run_tasks(within, [(seqs[i].to(torch.float64),) for i in todo], executor,
                          seqs[todo[0]].frames.points.device if todo else None)
         for i, a in zip(todo, done):
             seqs[i] = a

@@ -12,7 +12,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ..parallel import TILE, check_executor, local_executor, tiled_matrix
+from ..parallel import check_executor, local_executor, tiled_matrix
 from .structures import Trees
 
 __all__ = ["MIN_PAIRS_PER_PROCESS", "pairwise_distances", "trees_fingerprint"]
@@ -59,12 +59,13 @@ def trees_fingerprint(trees: Trees, kwargs: dict) -> str:
 
 
 def pairwise_distances(trees: Trees, processes: int | None = None, progress: bool = True,
-                       executor: Executor | None = None, tile: int = TILE, path: str | Path | None = None,
+                       executor: Executor | None = None, tile: int | None = None, path: str | Path | None = None,
                        **kwargs: object) -> Tensor:
     """All-pairs tree-shape distances ``(n, n)`` float64 (symmetric, zero diagonal) of the ``n`` trees of ``trees``.
 
     Tree ``j > i`` is registered onto tree ``i`` (:func:`~torch4dtree.trees.registration.register_to_reference`,
-    ``kwargs`` its settings), in ``tile x tile`` blocks of pairs (:mod:`torch4dtree.parallel.tiles`), each a task
+    ``kwargs`` its settings), in ``tile x tile`` blocks of pairs (:mod:`torch4dtree.parallel.tiles`; default
+    :func:`~torch4dtree.parallel.default_tile`: 64, fewer for fewer than 512 trees), each a task
     on ``executor`` if given (any :class:`~concurrent.futures.Executor`, e.g.
     :func:`torch4dtree.parallel.make_executor`); otherwise on a local process pool of ``processes`` workers
     (default: the CPU count), or inline where that is 1 or gives fewer than ``MIN_PAIRS_PER_PROCESS`` pairs per
