@@ -66,12 +66,24 @@ def local_executor(workers: int) -> ProcessPoolExecutor:
 
 
 class DaskExecutor(Executor):
-    """A Dask ``distributed`` client's executor that also closes the client on shutdown. Tasks are impure (never
+    """A Dask ``distributed`` client's executor that also closes the client on shutdown. Its workers compute on
+    one thread each (torch, numba: :func:`single_thread`; run one worker thread a core). Tasks are impure (never
     deduplicated by hashing their arguments); a task whose worker dies is re-run elsewhere by the scheduler
     (up to its ``distributed.scheduler.allowed-failures``)."""
 
     def __init__(self, client: Any) -> None:  # noqa: ANN401 - distributed.Client, imported lazily
+        from distributed.diagnostics.plugin import WorkerPlugin
+
+        class SingleThread(WorkerPlugin):
+            """Every worker, also one started later, computes on one thread per task thread."""
+
+            name = "torch4dtree-single-thread"
+
+            def setup(self, worker: Any) -> None:  # noqa: ANN401
+                single_thread()
+
         self.client = client
+        client.register_plugin(SingleThread())
         self._executor = client.get_executor(pure=False)
 
     def submit(self, fn: Callable[..., Any], /, *args: Any, **kwargs: Any) -> Future:  # noqa: ANN401
