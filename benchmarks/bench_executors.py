@@ -31,29 +31,27 @@ def main() -> None:
     t = time.perf_counter()
     ref = pairwise_distances(trees, processes=1, progress=False)
     rows = [("inline (1 thread)", time.perf_counter() - t, 0.0)]
-    t = time.perf_counter()
-    with local_executor(args.workers) as ex:
+
+    def timed(name: str, opened: float, ex) -> None:
         pairwise_distances(warm, executor=ex, progress=False)  # start the workers
-        start = time.perf_counter() - t
+        start = time.perf_counter() - opened
         t = time.perf_counter()
         D = pairwise_distances(trees, executor=ex, progress=False)
-        rows.append((f"{args.workers} local processes", time.perf_counter() - t, start))
-    if not torch.equal(D, ref):
-        raise SystemExit("local processes gave another matrix")
+        rows.append((name, time.perf_counter() - t, start))
+        if not torch.equal(D, ref):
+            raise SystemExit(f"{name} gave another matrix")
+
+    opened = time.perf_counter()
+    with local_executor(args.workers) as ex:
+        timed(f"{args.workers} local processes", opened, ex)
     if not args.no_dask:
         from distributed import LocalCluster
 
-        t = time.perf_counter()
+        opened = time.perf_counter()
         with LocalCluster(n_workers=args.workers, threads_per_worker=1, processes=True, dashboard_address=None,
                           silence_logs=40) as cluster, make_executor(scheduler=cluster.scheduler_address) as ex:
-            pairwise_distances(warm, executor=ex, progress=False)
-            start = time.perf_counter() - t
-            t = time.perf_counter()
-            D = pairwise_distances(trees, executor=ex, progress=False)
-            rows.append((f"Dask LocalCluster, {args.workers} workers", time.perf_counter() - t, start))
-        if not torch.equal(D, ref):
-            raise SystemExit("Dask gave another matrix")
-    print(f"{args.plants} plants, {pairs} pairs, T = {args.T}, tiles of 64 (identical matrices)")
+            timed(f"Dask LocalCluster, {args.workers} workers", opened, ex)
+    print(f"{args.plants} plants, {pairs} pairs, T = {args.T}, default tiles (identical matrices)")
     print("| where | seconds | s / pair | speed-up | start-up s |")
     print("|---|---|---|---|---|")
     for name, sec, start in rows:
