@@ -12,7 +12,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ..parallel import check_executor, local_executor, tiled_matrix
+from ..parallel import TILE, check_executor, default_tile, local_executor, tiled_matrix
 from .structures import Trees
 
 __all__ = ["MIN_PAIRS_PER_PROCESS", "pairwise_distances", "trees_fingerprint"]
@@ -64,8 +64,9 @@ def pairwise_distances(trees: Trees, processes: int | None = None, progress: boo
     """All-pairs tree-shape distances ``(n, n)`` float64 (symmetric, zero diagonal) of the ``n`` trees of ``trees``.
 
     Tree ``j > i`` is registered onto tree ``i`` (:func:`~torch4dtree.trees.registration.register_to_reference`,
-    ``kwargs`` its settings), in ``tile x tile`` blocks of pairs (:mod:`torch4dtree.parallel.tiles`; default
-    :func:`~torch4dtree.parallel.default_tile`: 64, fewer for fewer than 512 trees), each a task
+    ``kwargs`` its settings), in ``tile x tile`` blocks of pairs (:mod:`torch4dtree.parallel.tiles`; default:
+    ``TILE`` inline, where larger batches are faster, else :func:`~torch4dtree.parallel.default_tile`, smaller
+    below 512 trees so that workers share the blocks; a run resumed from ``path`` needs the same tile), each a task
     on ``executor`` if given (any :class:`~concurrent.futures.Executor`, e.g.
     :func:`torch4dtree.parallel.make_executor`); otherwise on a local process pool of ``processes`` workers
     (default: the CPU count), or inline where that is 1 or gives fewer than ``MIN_PAIRS_PER_PROCESS`` pairs per
@@ -95,7 +96,8 @@ def pairwise_distances(trees: Trees, processes: int | None = None, progress: boo
 
     def run(ex: Executor | None) -> np.ndarray:
         fingerprint = trees_fingerprint(trees, settings) if path is not None else ""
-        return tiled_matrix((n, n), task, True, tile, ex, path, fingerprint, lambda a, b, pairs: bar.update(pairs))
+        side = tile if tile is not None else (TILE if ex is None else default_tile(n))
+        return tiled_matrix((n, n), task, True, side, ex, path, fingerprint, lambda a, b, pairs: bar.update(pairs))
 
     if executor is None:
         procs = processes if processes is not None else (os.cpu_count() or 1)
