@@ -14,7 +14,7 @@ import shutil
 from pathlib import Path
 
 from ..settings import CROSS_LP, CROSS_ORDER_TOL, CROSS_POSITIONS, POSITIONS
-from .options import UsageError, int_at_least
+from .options import UsageError, add_executor_arguments, executor_from_args, int_at_least
 
 SECTION_NAMES = ("spatial", "temporal", "generative", "truth", "robustness")
 
@@ -59,6 +59,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-figures", action="store_true", help="skip the rendered figures")
     p.add_argument("--overwrite", action="store_true", help="replace an earlier report in --out")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
+    add_executor_arguments(p)
 
 
 def _prepare_out(out: Path, overwrite: bool) -> None:
@@ -87,7 +88,8 @@ def run(args: argparse.Namespace) -> int:
     settings = EvalSettings(T=args.T, T_cycle=args.T_cycle, n_t=args.n_t, quick=args.quick, seed=args.seed,
                             figures=not args.no_figures and out is not None, cross_positions=args.cross_positions,
                             cross_lp=args.cross_lp, cross_order_tol=args.cross_order_tol)
-    report = evaluate(data, out, settings, sections, progress=not args.quiet)
+    with executor_from_args(args) as executor:
+        report = evaluate(data, out, settings, sections, progress=not args.quiet, executor=executor)
     if args.json:
         print(dumps(report))
     elif out is not None:

@@ -19,7 +19,7 @@ import time
 from pathlib import Path
 
 from ..settings import MODELS
-from .options import add_config_arguments, config_from_args
+from .options import add_config_arguments, add_executor_arguments, config_from_args, executor_from_args
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -35,6 +35,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-figures", action="store_true", help="skip the rendered figures")
     p.add_argument("--overwrite", action="store_true", help="replace an existing run directory")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
+    add_executor_arguments(p)
 
 
 def _logger(path: Path, quiet: bool) -> logging.Logger:
@@ -57,6 +58,7 @@ def run(args: argparse.Namespace) -> int:
     from ..evaluate.model_report import write_model_report
     from ..io import read_sequence, sequence_folders
     from ..model import FourDTreeModel, OrganModel, save_model
+    from ..parallel import run_tasks
 
     out = Path(args.out)
     if out.exists():
@@ -75,20 +77,23 @@ def run(args: argparse.Namespace) -> int:
     seconds: dict[str, float] = {}
     t0 = time.perf_counter()
     opts = dataclasses.replace(cfg.load_options(), dtype=torch.float64)
-    seqs = [read_sequence(f, opts).sequence for f in tqdm(folders, desc="reading", unit="plant", disable=args.quiet)]
-    seconds["read"] = time.perf_counter() - t0
-    log.info("read %d 4D trees (%d frames) in %.2f s", len(seqs), sum(len(s) for s in seqs), seconds["read"])
-    t0 = time.perf_counter()
-    if cfg.model == "organs":
-        model = OrganModel(cfg.organ_settings()).fit(seqs)
-        seconds["fit"] = time.perf_counter() - t0
-        log.info("fitted the organ model in %.2f s: %d organs at %d botanical keys, %d ages", seconds["fit"],
-                 model.report_["organs"], model.report_["keys"], model.report_["ages"])
-    else:
-        model = FourDTreeModel(cfg.model_settings()).fit(seqs, progress=not args.quiet)
-        seconds["fit"] = time.perf_counter() - t0
-        log.info("fitted the paper's model in %.2f s: %d slots, %d tree components, %d modes", seconds["fit"],
-                 model.report_["population"]["slots"], model.population.k, model.n_modes)
+    with executor_from_args(args) as executor, \
+            tqdm(total=len(folders), desc="reading", unit="plant", disable=args.quiet) as bar:
+        seqs = [r.sequence for r in run_tasks(read_sequence, [(f, opts) for f in folders], executor,
+                                              done=lambda i, r: bar.update())]
+        seconds["read"] = time.perf_counter() - t0
+        log.info("read %d 4D trees (%d frames) in %.2f s", len(seqs), sum(len(s) for s in seqs), seconds["read"])
+        t0 = time.perf_counter()
+        if cfg.model == "organs":
+            model = OrganModel(cfg.organ_settings()).fit(seqs)
+            seconds["fit"] = time.perf_counter() - t0
+            log.info("fitted the organ model in %.2f s: %d organs at %d botanical keys, %d ages", seconds["fit"],
+                     model.report_["organs"], model.report_["keys"], model.report_["ages"])
+        else:
+            model = FourDTreeModel(cfg.model_settings()).fit(seqs, progress=not args.quiet, executor=executor)
+            seconds["fit"] = time.perf_counter() - t0
+            log.info("fitted the paper's model in %.2f s: %d slots, %d tree components, %d modes", seconds["fit"],
+                     model.report_["population"]["slots"], model.population.k, model.n_modes)
     path = save_model(model, out / "model.pt", cfg.to_dict())
     log.info("wrote %s", path)
     report = write_model_report(model, out, args.dataset, seqs, seconds, figures=not args.no_figures,

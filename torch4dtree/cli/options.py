@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 from collections.abc import Callable
+from contextlib import AbstractContextManager, nullcontext
 from pathlib import Path
 
 from ..config import Config, load_config
@@ -106,3 +107,28 @@ def config_from_args(args: argparse.Namespace) -> Config:
         return dataclasses.replace(config, **given)
     except ValueError as e:
         raise UsageError(f"command line: {e}") from None
+
+
+def add_executor_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--workers N`` (local processes) and ``--scheduler ADDRESS`` (a Dask cluster): where the heavy work runs
+    (:func:`torch4dtree.parallel.make_executor`; docs/distributed.md). Neither: in this process, as without them."""
+    group = parser.add_argument_group("where the work runs (docs/distributed.md)")
+    group.add_argument("--workers", type=positive_int, default=None, metavar="N",
+                       help="run the heavy steps on N local worker processes (default: in this process)")
+    group.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                       help="run them on the Dask cluster of this scheduler (e.g. tcp://host:8786; needs "
+                            "pip install torch4dtree[distributed]), or on Ray (ray, ray://host:10001) "
+                            "(default: none)")
+
+
+def executor_from_args(args: argparse.Namespace) -> AbstractContextManager:
+    """A context manager giving the executor of ``--workers`` / ``--scheduler``, or ``None`` when neither is given
+    (so every entry point keeps its in-process default)."""
+    workers, scheduler = getattr(args, "workers", None), getattr(args, "scheduler", None)
+    if workers is not None and scheduler is not None:
+        raise UsageError("give --workers or --scheduler, not both (a cluster's workers are its own)")
+    if workers is None and scheduler is None:
+        return nullcontext(None)
+    from ..parallel import make_executor  # here: building the parser must not import torch
+
+    return make_executor(workers, scheduler)

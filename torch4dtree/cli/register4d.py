@@ -13,7 +13,15 @@ import json
 import time
 from pathlib import Path
 
-from .options import UsageError, add_config_arguments, check_output_file, config_from_args, int_at_least
+from .options import (
+    UsageError,
+    add_config_arguments,
+    add_executor_arguments,
+    check_output_file,
+    config_from_args,
+    executor_from_args,
+    int_at_least,
+)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -32,6 +40,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="the 4D geodesic as a grid picture (.png) or video (.gif, .mp4); its folder must exist "
                         "(default: none)")
     p.add_argument("--overwrite", action="store_true", help="replace existing files in --out / --image")
+    add_executor_arguments(p)
 
 
 def _read(folder: str, options: object) -> object:
@@ -59,9 +68,10 @@ def run(args: argparse.Namespace) -> int:
     cfg = config_from_args(args)
     opts = dataclasses.replace(cfg.load_options(), dtype=torch.float64)
     a, b = _read(args.reference, opts), _read(args.moving, opts)
-    t0 = time.perf_counter()
-    res = register4d(a, b, lambdas=cfg.lambdas, rotation=cfg.rotation, n_t=args.n_t,
-                     registration=cfg.registration_settings(), cross=cfg.cross_settings())
+    with executor_from_args(args) as executor:
+        t0 = time.perf_counter()
+        res = register4d(a, b, lambdas=cfg.lambdas, rotation=cfg.rotation, n_t=args.n_t,
+                         registration=cfg.registration_settings(), cross=cfg.cross_settings(), executor=executor)
     seconds = time.perf_counter() - t0
     written: list[str] = []
     path = res.geodesic(args.steps) if (args.out or image) else []

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import importlib
+import inspect
 import time
 from collections.abc import Sequence
+from concurrent.futures import Executor
 from pathlib import Path
 from typing import Any
 
@@ -16,9 +18,12 @@ SECTIONS = ("spatial", "temporal", "generative", "truth", "robustness")
 
 
 def evaluate(data_dir: str | Path, out: str | Path | None = None, settings: EvalSettings | None = None,
-             sections: Sequence[str] = SECTIONS, progress: bool = False) -> dict[str, Any]:
+             sections: Sequence[str] = SECTIONS, progress: bool = False, executor: Executor | None = None
+             ) -> dict[str, Any]:
     """Run the experiments of ``sections`` on a data folder; write ``report.json`` / ``report.md`` (and figures) to
-    ``out`` when given (a new folder, or an existing empty one). Returns the report as a dict."""
+    ``out`` when given (a new folder, or an existing empty one). Returns the report as a dict. ``executor``: where
+    the sections whose ``run`` takes an ``executor`` run their heavy steps (:mod:`torch4dtree.parallel`); the
+    numbers do not depend on it."""
     settings = settings or EvalSettings()
     unknown = [s for s in sections if s not in SECTIONS]
     if unknown:
@@ -39,7 +44,8 @@ def evaluate(data_dir: str | Path, out: str | Path | None = None, settings: Eval
     for name in sections:
         mod = importlib.import_module(f".{name}", __package__)
         t1 = time.perf_counter()
-        result = mod.run(datas, settings, progress)
+        spread = {"executor": executor} if "executor" in inspect.signature(mod.run).parameters else {}
+        result = mod.run(datas, settings, progress, **spread)
         report["timings"].update(result.pop("timings", {}))
         report["timings"][f"section_{name}"] = {"seconds": time.perf_counter() - t1, "paper_seconds": None,
                                                 "what": f"the whole {name} section"}

@@ -23,11 +23,13 @@ import datetime
 import json
 import re
 from collections.abc import Callable
+from concurrent.futures import Executor
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import torch
 
+from ..parallel import run_tasks
 from ..settings import DEFAULT_T, HIERARCHIES, check_choice
 from ..trees.structures import TreeError, Trees, TreeSequence
 from .mat import read_mat_tree
@@ -277,8 +279,12 @@ def read_dataset(
     folder: str | Path,
     options: LoadOptions | None = None,
     progress: Callable[[str], None] | None = None,
+    executor: Executor | None = None,
 ) -> list[LoadedSequence]:
-    """Read every sequence folder of a dataset folder (see :func:`read_sequence`).
+    """Read every sequence folder of a dataset folder (see :func:`read_sequence`), in name order.
+
+    ``executor``: one task a sequence folder there (:mod:`torch4dtree.parallel`; the workers must see the
+    folder's path); ``progress`` is then called with each sequence folder's name as it is read, on the caller's side.
 
     Example:
         >>> import tempfile
@@ -288,7 +294,14 @@ def read_dataset(
         >>> [s.sequence.name for s in read_dataset(root, LoadOptions(T=8))]
         ['plant_1']
     """
-    return [read_sequence(p, options, progress) for p in sequence_folders(folder)]
+    folders = sequence_folders(folder)
+    if executor is None:
+        return [read_sequence(p, options, progress) for p in folders]
+    def done(i: int, loaded: LoadedSequence) -> None:
+        if progress:
+            progress(folders[i].name)
+
+    return run_tasks(read_sequence, [(p, options) for p in folders], executor, done=done)
 
 
 def write_sequence(folder: str | Path, seq: TreeSequence, overwrite: bool = False, comment: str = "") -> list[Path]:

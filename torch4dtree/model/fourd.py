@@ -16,11 +16,13 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Sequence
+from concurrent.futures import Executor
 from typing import Any, NamedTuple
 
 import torch
 from torch import Tensor, nn
 
+from ..parallel import move, run_tasks
 from ..settings import ModelSettings
 from ..space.fitted import NotFittedError
 from ..space.pca import principal_axes, variance_components
@@ -30,7 +32,8 @@ from ..trees.structures import Trees, TreeSequence
 from .sampler import TruncatedNormalSampler
 from .trajectory import TrajectoryMean, TrajectoryPCA, flatten_srvf
 
-__all__ = ["FourDTreeModel", "Forecast", "ModelOutput", "Score", "persistence_betas", "persistence_gains"]
+__all__ = ["ENCODE_CHUNK", "FourDTreeModel", "Forecast", "ModelOutput", "Score", "encode_sequences",
+           "persistence_betas", "persistence_gains"]
 
 # forecast: candidate time-rate factors of the observed part (its affine temporal alignment onto the model), with a
 # log-normal prior of this spread on the rate (without it, the widest rates won on synthetic plants and forecasts lost
@@ -51,6 +54,8 @@ FORECAST_SHRINK = (0.0, 0.25, 0.5, 0.75, 1.0)
 # training plant at that age, in units of the median squared distance between training plants (1e6: equal weights);
 # narrower widths put all weight on one plant (docs/experiments.md)
 FORECAST_WIDTHS = (0.2, 0.5, 1.0, 2.0, 1e6)
+# plants a task of encode_many: each task ships the fitted model once, so a few plants amortise it
+ENCODE_CHUNK = 8
 
 
 class ModelOutput(NamedTuple):
@@ -184,12 +189,15 @@ class FourDTreeModel(nn.Module):
         return self.time_start + grid * self.duration
 
     # ------------------------------------------------------------------------ fit
-    def fit(self, sequences: Sequence[TreeSequence], progress: bool = False) -> FourDTreeModel:
-        """Fit every stage on ``N >= 2`` 4D trees (CPU). Returns ``self``; diagnostics in ``report_``."""
+    def fit(self, sequences: Sequence[TreeSequence], progress: bool = False, executor: Executor | None = None
+            ) -> FourDTreeModel:
+        """Fit every stage on ``N >= 2`` 4D trees (CPU). Returns ``self``; diagnostics in ``report_``.
+        ``executor``: where the population's registrations run (:meth:`Population.fit`); the result does not
+        depend on it."""
         import time
 
         sequences = list(sequences)
-        self.population.fit(sequences, progress)
+        self.population.fit(sequences, progress, executor)
         alpha = self.population.trajectories
         t0 = time.perf_counter()
         self.mean.fit(alpha)
@@ -390,6 +398,35 @@ class FourDTreeModel(nn.Module):
         """A 4D tree's standardised mode coefficients ``(m,)`` (tree space, time warp onto the mean, projection)."""
         return self.score(sequence).coefficients
 
+    def portable(self) -> FourDTreeModel:
+        """A copy on the CPU holding only the fitted state (what a checkpoint holds, not the training layout):
+        what is shipped to workers (:meth:`encode_many`)."""
+        self._check_fitted()
+        copy = FourDTreeModel(self.settings)
+        copy.load_state_dict(move(self.state_dict(), "cpu"))
+        return copy
+
+    def encode_many(self, sequences: Sequence[TreeSequence], executor: Executor | None = None) -> Tensor:
+        """``(N, m)``: :meth:`encode` of every 4D tree of ``sequences``; on ``executor`` in tasks of
+        ``ENCODE_CHUNK`` plants, each shipping :meth:`portable` (the same numbers as :meth:`encode`).
+
+        Example:
+            >>> from torch4dtree.data import synthetic_plant
+            >>> plants = [synthetic_plant("maize", i, n_frames=3, T=8).sequence for i in range(3)]
+            >>> model = FourDTreeModel(ModelSettings(n_t=4, medoid_candidates=1)).fit(plants)
+            >>> model.encode_many(plants).shape[0]
+            3
+        """
+        self._check_fitted()
+        seqs = list(sequences)
+        if executor is None:
+            rows = [self.encode(s) for s in seqs]
+        else:
+            lean = self.portable()
+            chunks = [(lean, seqs[i:i + ENCODE_CHUNK]) for i in range(0, len(seqs), ENCODE_CHUNK)]
+            rows = [z for part in run_tasks(encode_sequences, chunks, executor, self.duration.device) for z in part]
+        return torch.stack(rows) if rows else self.duration.new_zeros(0, self.pca.n_modes)
+
     def score(self, sequence: TreeSequence) -> Score:
         """Typicality of a 4D tree (:class:`Score`): large ``mahalanobis`` or ``residual`` flag abnormal growth."""
         self._check_fitted()
@@ -494,6 +531,11 @@ class FourDTreeModel(nn.Module):
         from .checkpoint import save_model
 
         return str(save_model(self, path, config, overwrite=overwrite))
+
+
+def encode_sequences(model: FourDTreeModel, sequences: Sequence[TreeSequence]) -> list[Tensor]:
+    """``[model.encode(s) for s in sequences]`` (a task of :meth:`FourDTreeModel.encode_many`: top-level)."""
+    return [model.encode(s) for s in sequences]
 
 
 def persistence_betas(d: Tensor, f: Sequence[Tensor]) -> tuple[Tensor, list[Tensor]]:

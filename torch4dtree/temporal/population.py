@@ -32,11 +32,14 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
+from concurrent.futures import Executor
+from functools import partial
 from typing import Any, NamedTuple
 
 import torch
 from torch import Tensor
 
+from ..parallel import move, run_tasks
 from ..settings import (
     DEFAULT_NT,
     ROTATIONS,
@@ -61,7 +64,7 @@ from .spatiotemporal import (
 from .trajectory import resample_trajectory
 from .within import AlignedSequence, register_sequence
 
-__all__ = ["Population", "SequenceEncoding", "fit_population"]
+__all__ = ["Population", "SequenceEncoding", "cross_registration", "fit_population", "transform_sequence"]
 
 
 class SequenceEncoding(NamedTuple):
@@ -78,6 +81,20 @@ class SequenceEncoding(NamedTuple):
     times: Tensor
     aligned: AlignedTrees
     dropped_sq_norm: Tensor
+
+
+def cross_registration(trees: Trees, reference: Trees, lam: tuple[float, float, float], rotation: str,
+                       registration: RegistrationSettings, cross: CrossSettings) -> list[TreeRegistration]:
+    """A cross-sequence registration of ``trees`` onto ``reference`` with weights ``lam`` (effective), one way
+    (``symmetric=False``: no inverted solutions, as every use of a layout's registrations). A task: top-level,
+    picklable."""
+    return registration.register(trees, reference, lam, rotation, positions=cross.positions,
+                                 order_tol=cross.order_tol, lp_relative=False, symmetric=False)
+
+
+def transform_sequence(population: Population, sequence: TreeSequence) -> SequenceEncoding:
+    """``population.transform(sequence)`` (a task: top-level, picklable)."""
+    return population.transform(sequence)
 
 
 class Population(FittedModule):
@@ -166,10 +183,8 @@ class Population(FittedModule):
 
     def _register_cross(self, trees: Trees, reference: Trees, lam: tuple[float, float, float]
                         ) -> list[TreeRegistration]:
-        """A cross-sequence registration of ``trees`` onto ``reference`` with weights ``lam`` (effective), one way
-        (``symmetric=False``: no inverted solutions, as every use of a layout's registrations)."""
-        return self.registration.register(trees, reference, lam, self.rotation, positions=self.cross.positions,
-                                          order_tol=self.cross.order_tol, lp_relative=False, symmetric=False)
+        """:func:`cross_registration` with this population's settings."""
+        return cross_registration(trees, reference, lam, self.rotation, self.registration, self.cross)
 
     @property
     def k(self) -> int:
@@ -187,8 +202,13 @@ class Population(FittedModule):
                      torch.tensor([S], device=dev), torch.arange(S, device=dev))
 
     # ------------------------------------------------------------------------ fit
-    def fit(self, sequences: Sequence[TreeSequence], progress: bool = False) -> Population:
-        """Fit on ``N >= 2`` 4D trees (each with at least 2 frames). Returns ``self``; timings in ``report_``."""
+    def fit(self, sequences: Sequence[TreeSequence], progress: bool = False, executor: Executor | None = None
+            ) -> Population:
+        """Fit on ``N >= 2`` 4D trees (each with at least 2 frames). Returns ``self``; timings in ``report_``.
+
+        ``executor``: runs the within-sequence registrations (one task a plant) and the reference's candidates
+        (one task each) there (:mod:`torch4dtree.parallel`); the union layout grows plant by plant on the driver.
+        The result does not depend on it."""
         seqs = list(sequences)
         if len(seqs) < 2:
             raise ValueError(f"a population needs at least 2 4D trees, got {len(seqs)}")
@@ -210,13 +230,15 @@ class Population(FittedModule):
 
         # identities over time with register_sequence's own weights (lp relative to each frame pair: a plant's
         # young frames need it); the space's metric ``lam`` applies from the union layout on
-        aseqs = [register_sequence(s, progress=False, registration=self.registration)
-                 for s in tqdm(seqs, disable=not progress, desc="within-sequence registration", unit="plant")]
+        device = seqs[0].frames.points.device
+        with tqdm(total=len(seqs), disable=not progress, desc="within-sequence registration", unit="plant") as bar:
+            within = partial(register_sequence, progress=False, registration=self.registration)
+            aseqs = run_tasks(within, [(s,) for s in seqs], executor, device, lambda i, r: bar.update())
         seconds["within_sequence"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         reps = [representative_tree(a) for a in aseqs]
         names = [s.name or f"plant_{i}" for i, s in enumerate(seqs)]
-        ref, regs = self._medoid(reps, names, self.cross_lambdas_, progress)
+        ref, regs = self._medoid(reps, names, self.cross_lambdas_, progress, executor)
         movs, union, regs = self._union(aseqs, reps, names, ref, regs, self.cross_lambdas_, progress)
         seconds["cross_sequence"] = time.perf_counter() - t0
         t0 = time.perf_counter()
@@ -253,8 +275,8 @@ class Population(FittedModule):
                          time_spans=spans)
         return self
 
-    def _medoid(self, reps: list[Trees], names: list[str], lam: tuple[float, float, float], progress: bool
-                ) -> tuple[int, list[Any]]:
+    def _medoid(self, reps: list[Trees], names: list[str], lam: tuple[float, float, float], progress: bool,
+                executor: Executor | None = None) -> tuple[int, list[Any]]:
         """Index of the reference and the registrations of every representative onto it (module doc, step 2)."""
         total = [float(r.total_length()[0]) for r in reps]
         ranked = sorted(range(len(reps)), key=lambda i: (total[i], names[i]))
@@ -264,10 +286,10 @@ class Population(FittedModule):
         batch = Trees.cat(reps)
         from tqdm.auto import tqdm
 
-        scored = []
-        for c in tqdm(cands, disable=not progress, desc="choosing the reference", unit="candidate"):
-            regs = self._register_cross(batch, reps[c], lam)
-            scored.append((sum(float(r.distance) ** 2 for r in regs), names[c], c, regs))
+        tasks = [(batch, reps[c], lam, self.rotation, self.registration, self.cross) for c in cands]
+        with tqdm(total=len(cands), disable=not progress, desc="choosing the reference", unit="candidate") as bar:
+            found = run_tasks(cross_registration, tasks, executor, batch.points.device, lambda i, r: bar.update())
+        scored = [(sum(float(r.distance) ** 2 for r in regs), names[c], c, regs) for c, regs in zip(cands, found)]
         best = min(scored, key=lambda x: x[:2])
         return best[2], best[3]
 
@@ -295,6 +317,32 @@ class Population(FittedModule):
         return movs, union, regs
 
     # ------------------------------------------------------------------------ transform
+    def portable(self) -> Population:
+        """A copy on the CPU holding only the fitted state (what a checkpoint holds, not the training layout):
+        what is shipped to workers to write new plants in the space (:meth:`transform_many`)."""
+        self._check_fitted()
+        copy = Population(cross=self.cross)
+        copy.load_state_dict(move(self.state_dict(), "cpu"))
+        return copy
+
+    def transform_many(self, sequences: Sequence[TreeSequence], executor: Executor | None = None
+                       ) -> list[SequenceEncoding]:
+        """:meth:`transform` of every 4D tree of ``sequences``; on ``executor`` one task a plant, shipping
+        :meth:`portable` (results on this population's device, equal to :meth:`transform`'s).
+
+        Example:
+            >>> from torch4dtree.data import synthetic_plant
+            >>> plants = [synthetic_plant("maize", i, n_frames=3, T=8).sequence for i in range(2)]
+            >>> pop = Population(n_t=4, medoid_candidates=1).fit(plants)
+            >>> [e.trajectory.shape[0] for e in pop.transform_many(plants)]
+            [4, 4]
+        """
+        seqs = list(sequences)
+        if executor is None:
+            return [self.transform(s) for s in seqs]
+        lean = self.portable()
+        return run_tasks(transform_sequence, [(lean, s) for s in seqs], executor, self.ref_points.device)
+
     def transform(self, sequence: TreeSequence, aligned: AlignedSequence | None = None) -> SequenceEncoding:
         """Write a new 4D tree into the fitted space (module doc): within-sequence registration, registration of
         its representative onto the union representative, its frames in the layout, their coefficients and
@@ -356,8 +404,8 @@ class Population(FittedModule):
 def fit_population(sequences: Sequence[TreeSequence], lambdas: Sequence[float] = (1.0, 1.0, 1.0),
                    rotation: str = "none", n_t: int = DEFAULT_NT, variance: float = 0.99,
                    n_components: int | None = None, progress: bool = False, medoid_candidates: int = 3,
-                   registration: RegistrationSettings | None = None, cross: CrossSettings | None = None
-                   ) -> Population:
+                   registration: RegistrationSettings | None = None, cross: CrossSettings | None = None,
+                   executor: Executor | None = None) -> Population:
     """``N`` 4D trees in one tree space (module doc): ``Population(...).fit(sequences)``.
 
     Example:
@@ -367,4 +415,4 @@ def fit_population(sequences: Sequence[TreeSequence], lambdas: Sequence[float] =
         torch.Size([2, 4])
     """
     return Population(lambdas, rotation, n_t, n_components, variance, medoid_candidates, registration,
-                      cross).fit(sequences, progress)
+                      cross).fit(sequences, progress, executor)

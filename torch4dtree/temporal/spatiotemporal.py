@@ -40,6 +40,8 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
+from concurrent.futures import Executor
+from functools import partial
 from typing import NamedTuple
 
 import torch
@@ -48,6 +50,7 @@ from torch import Tensor
 from ..curves.register import dp_warp
 from ..curves.srvf import interpolate_curve, inverse_srvf, srvf, warp_srvf
 from ..curves.warps import compose_warps
+from ..parallel import run_tasks
 from ..settings import (
     DEFAULT_NT,
     ROTATIONS,
@@ -381,7 +384,8 @@ def register4d(reference: TreeSequence | AlignedSequence, moving: TreeSequence |
                lambdas: Sequence[float] = (1.0, 1.0, 1.0), rotation: str = "none", n_t: int = DEFAULT_NT,
                n_components: int | None = None, progress: bool = False, time_weight: float = TIME_WEIGHT,
                registration: RegistrationSettings | None = None, cross: CrossSettings | None = None,
-               temporal: TemporalSettings | None = None) -> SpatiotemporalRegistration:
+               temporal: TemporalSettings | None = None, executor: Executor | None = None
+               ) -> SpatiotemporalRegistration:
     """Register the 4D tree ``moving`` (``B``) onto ``reference`` (``A``) in space and time (module doc).
 
     Args:
@@ -402,6 +406,8 @@ def register4d(reference: TreeSequence | AlignedSequence, moving: TreeSequence |
             fallback rotation (:class:`~torch4dtree.settings.CrossSettings`); the within-sequence registrations
             keep :func:`register_sequence`'s own, the 4D distance keeps ``lambdas``.
         temporal: the time-warp DP (:class:`~torch4dtree.settings.TemporalSettings`).
+        executor: runs the within-sequence registrations of the two 4D trees there, one task each
+            (:mod:`torch4dtree.parallel`; no progress bars then); the result does not depend on it.
 
     Returns:
         :class:`SpatiotemporalRegistration`.
@@ -430,17 +436,24 @@ def register4d(reference: TreeSequence | AlignedSequence, moving: TreeSequence |
         raise TypeError(f"expected a TreeSequence or an AlignedSequence, got {type(reference).__name__}")
     lam = effective_lambdas(lambdas, ref_tree)
     lam_reg = lam if cross.lp is None else effective_lambdas((*lambdas[:2], cross.lp), ref_tree)
-    seqs = []
+    seqs: list[AlignedSequence | TreeSequence] = []
     for x in (reference, moving):
-        if isinstance(x, AlignedSequence):
-            seqs.append(x)
-        elif isinstance(x, TreeSequence):
-            if len(x) < 2:
-                raise ValueError(f"{x.name or 'a 4D tree'} has {len(x)} frame(s); a 4D tree needs at least 2")
-            # identities over time with register_sequence's own weights (as Population does); lam from here on
-            seqs.append(register_sequence(x.to(torch.float64), progress=progress, registration=search))
-        else:
+        if isinstance(x, TreeSequence) and len(x) < 2:
+            raise ValueError(f"{x.name or 'a 4D tree'} has {len(x)} frame(s); a 4D tree needs at least 2")
+        if not isinstance(x, (AlignedSequence, TreeSequence)):
             raise TypeError(f"expected a TreeSequence or an AlignedSequence, got {type(x).__name__}")
+        seqs.append(x)
+    # identities over time with register_sequence's own weights (as Population does); lam from here on
+    todo = [i for i, x in enumerate(seqs) if isinstance(x, TreeSequence)]
+    if executor is None:
+        for i in todo:
+            seqs[i] = register_sequence(seqs[i].to(torch.float64), progress=progress, registration=search)
+    else:
+        within = partial(register_sequence, progress=False, registration=search)
+        done = run_tasks(within, [(seqs[i].to(torch.float64),) for i in todo], executor,
+                         seqs[todo[0]].frames.points.device if todo else None)
+        for i, a in zip(todo, done):
+            seqs[i] = a
     A, B = seqs
     seconds["within_sequence"] = time.perf_counter() - t0
     t0 = time.perf_counter()
