@@ -82,3 +82,29 @@ def test_warm_up_then_no_notice(capsys):
     out = dp_numba.run_pairs(False, np.zeros((0, 7, 3)), np.zeros((0, 7, 3)), False,
                              dp_numba.step_arrays(2) * 2, np.zeros(9, np.int64), np.zeros(3), 0.0)
     assert [o.shape for o in out] == [(0,), (0,), (0, 8), (0, 3, 3), (0, 1, 0), (0, 0, 0)]
+
+
+@pytest.mark.parametrize("chunk", [1, 3, 64])
+def test_chunked_threads_equal_single_calls(monkeypatch, chunk):
+    """A batch shared between threads in chunks (any chunk size) gives every pair bit for bit what a single call
+    gives: registrations with a rotation and the tree solver's DP warps."""
+    import numba
+
+    from torch4dtree.curves import dp_warp, srvf
+
+    x, y = curves(11, 40, 4), curves(11, 40, 5)
+    singles = [register_curves(y[b], x[b], rotation="so3") for b in range(11)]
+    warps = [dp_warp(srvf(x[b]), srvf(y[b]), neighbourhood=4) for b in range(11)]
+    monkeypatch.setattr(dp_numba, "PARALLEL_MIN_PAIRS", 2)
+    monkeypatch.setattr(dp_numba, "PAIR_CHUNK", chunk)
+    before = numba.get_num_threads()
+    numba.set_num_threads(min(2, numba.config.NUMBA_NUM_THREADS))
+    try:
+        batch = register_curves(y, x, rotation="so3")
+        dp = dp_warp(srvf(x), srvf(y), neighbourhood=4)
+    finally:
+        numba.set_num_threads(before)
+    for b in range(11):
+        for one, many in zip(singles[b], batch):
+            assert torch.equal(one, many[b])
+        assert torch.equal(warps[b].gamma, dp.gamma[b]) and torch.equal(warps[b].energy, dp.energy[b])
