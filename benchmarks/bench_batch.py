@@ -3,7 +3,8 @@ tree registration's batched DP warps (no rotation, the solver's settings), with 
 with the machine's other core idle and loaded by a busy-loop process.
 
     python benchmarks/bench_batch.py [--T 100] [--pairs 400] [--sizes 1 2 4 8 16 32 64 128 200 400] [--reps 3]
-                                     [--threads 1 2] [--loads idle busy] [--json]
+                                     [--threads 1 2] [--loads idle busy] [--chunk N] [--min-pairs N]
+                                     [--json]
 
 Every number is a median over ``--reps`` interleaved runs of about ``--pairs`` pairs; ratios divide the batch's
 per-pair time by the single calls' (below 1: the batch is faster). "idle" means no process of this benchmark
@@ -25,7 +26,7 @@ import numba
 import torch
 
 from torch4dtree.bench.curves import curve_pairs
-from torch4dtree.curves import dp_warp, register_curves, srvf
+from torch4dtree.curves import dp_numba, dp_warp, register_curves, srvf
 
 
 def per_pair(fn: Callable[[], object], pairs: int) -> float:
@@ -35,19 +36,20 @@ def per_pair(fn: Callable[[], object], pairs: int) -> float:
     return (time.perf_counter() - t0) / pairs
 
 
-def loop_single(call: Callable[[int, int], object], n: int) -> Callable[[], object]:
-    return lambda: [call(i, i + 1) for i in range(n)]
+def loop_single(call: Callable[[int], object], n: int) -> Callable[[], object]:
+    return lambda: [call(i) for i in range(n)]
 
 
 def loop_batches(call: Callable[[int, int], object], n: int, b: int) -> Callable[[], object]:
     return lambda: [call(i, i + b) for i in range(0, n - b + 1, b)]
 
 
-def measure(call: Callable[[int, int], object], n: int, sizes: list[int], reps: int) -> dict[str, float]:
-    """Median seconds per pair of single calls (``"single"``) and of batches of each size, interleaved."""
+def measure(one: Callable[[int], object], call: Callable[[int, int], object], n: int, sizes: list[int],
+            reps: int) -> dict[str, float]:
+    """Median seconds per pair of unbatched single calls (``"single"``) and of batches of each size, interleaved."""
     runs: dict[str, list[float]] = {"single": [], **{str(b): [] for b in sizes}}
     for _ in range(reps):
-        runs["single"].append(per_pair(loop_single(call, n), n))
+        runs["single"].append(per_pair(loop_single(one, n), n))
         for b in sizes:
             done = (n // b) * b
             runs[str(b)].append(per_pair(loop_batches(call, n, b), done))
@@ -67,6 +69,9 @@ def main() -> None:
     p.add_argument("--reps", type=int, default=3)
     p.add_argument("--threads", type=int, nargs="+", default=[1, 2])
     p.add_argument("--loads", nargs="+", default=["idle", "busy"], choices=("idle", "busy"))
+    p.add_argument("--chunk", type=int, default=None, help="pairs a thread takes at a time (default: PAIR_CHUNK)")
+    p.add_argument("--min-pairs", type=int, default=None,
+                   help="pairs a thread at least (default: PARALLEL_MIN_PAIRS)")
     p.add_argument("--json", action="store_true")
     a = p.parse_args()
     sizes = [b for b in a.sizes if b <= a.pairs]
@@ -74,11 +79,16 @@ def main() -> None:
     mov, ref = curve_pairs("random", a.pairs, a.T, g)
     q1, q2 = srvf(ref), srvf(mov)
     tree_dp = {"neighbourhood": 4, "band": 4, "coarse": 16, "refine": 0}  # the tree registration's DP settings
-    paths: dict[str, Callable[[int, int], object]] = {
-        "curves so3": lambda i, j: register_curves(mov[i:j], ref[i:j], rotation="so3"),
-        "tree DP": lambda i, j: dp_warp(q1[i:j], q2[i:j], **tree_dp),
+    paths: dict[str, tuple[Callable[[int], object], Callable[[int, int], object]]] = {
+        "curves so3": (lambda i: register_curves(mov[i], ref[i], rotation="so3"),
+                       lambda i, j: register_curves(mov[i:j], ref[i:j], rotation="so3")),
+        "tree DP": (lambda i: dp_warp(q1[i], q2[i], **tree_dp), lambda i, j: dp_warp(q1[i:j], q2[i:j], **tree_dp)),
     }
-    for call in paths.values():  # compile / load the kernels, start the pools
+    if a.chunk is not None:
+        dp_numba.PAIR_CHUNK = a.chunk
+    if a.min_pairs is not None:
+        dp_numba.PARALLEL_MIN_PAIRS = a.min_pairs
+    for _, call in paths.values():  # compile / load the kernels, start the pools
         call(0, 64)
     spare = max((os.cpu_count() or 1) - 1, 1)
     results = []
@@ -89,8 +99,8 @@ def main() -> None:
             for th in a.threads:
                 numba.set_num_threads(min(th, numba.config.NUMBA_NUM_THREADS))
                 torch.set_num_threads(th)
-                for name, call in paths.items():
-                    r = measure(call, a.pairs, sizes, a.reps)
+                for name, (one, call) in paths.items():
+                    r = measure(one, call, a.pairs, sizes, a.reps)
                     results.append({"load": load, "threads": th, "path": name, "load_avg": os.getloadavg()[0],
                                     "single_ms": r["single"] * 1e3,
                                     "batch_ms": {b: r[str(b)] * 1e3 for b in sizes},
@@ -99,10 +109,13 @@ def main() -> None:
             for proc in procs:
                 proc.terminate()
                 proc.wait()
+    chunk = getattr(dp_numba, "PAIR_CHUNK", None)  # None: a version that splits batches in fixed shares
     if a.json:
-        print(json.dumps({"T": a.T, "pairs": a.pairs, "cpus": os.cpu_count(), "results": results}))
+        print(json.dumps({"T": a.T, "pairs": a.pairs, "cpus": os.cpu_count(), "chunk": chunk,
+                          "min_pairs": dp_numba.PARALLEL_MIN_PAIRS, "results": results}))
         return
-    print(f"T = {a.T}, {a.pairs} pairs a run, median of {a.reps}; ratio = batch ms a pair / single-call ms a pair")
+    print(f"T = {a.T}, {a.pairs} pairs a run, median of {a.reps}, chunk {chunk}, min pairs "
+          f"{dp_numba.PARALLEL_MIN_PAIRS}; ratio = batch ms a pair / single-call ms a pair")
     print(f"{'path':>11} {'load':>5} {'thr':>3} {'single ms':>9} " + " ".join(f"{b:>6}" for b in sizes))
     for r in results:
         print(f"{r['path']:>11} {r['load']:>5} {r['threads']:>3} {r['single_ms']:>9.3f} "

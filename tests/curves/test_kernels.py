@@ -1,5 +1,7 @@
 """The numba driver: threads chosen by batch size (same results either way) and the compile notice."""
 
+import os
+
 import numpy as np
 import pytest
 import torch
@@ -15,6 +17,7 @@ def curves(n: int, T: int, seed: int) -> torch.Tensor:
 
 
 def test_small_batches_stay_on_the_calling_thread(monkeypatch):
+    monkeypatch.setattr(dp_numba, "idle_cores", lambda: 64)
     assert dp_numba.pair_threads(1) == 1
     assert dp_numba.pair_threads(2 * dp_numba.PARALLEL_MIN_PAIRS - 1) == 1
     big = dp_numba.pair_threads(64 * dp_numba.PARALLEL_MIN_PAIRS)
@@ -39,6 +42,7 @@ def test_threads_change_no_result(monkeypatch):
     real_pool = dp_numba._pool
     monkeypatch.setattr(dp_numba, "_pool", lambda: used.append(1) or real_pool())
     monkeypatch.setattr(dp_numba, "PARALLEL_MIN_PAIRS", 3)  # 4 threads' worth of pairs
+    monkeypatch.setattr(dp_numba, "idle_cores", lambda: 64)
     threaded = register_curves(y, x, rotation="vertical")
     assert used, "the threaded path did not run"
     for a, b in zip(serial, threaded):
@@ -97,6 +101,7 @@ def test_chunked_threads_equal_single_calls(monkeypatch, chunk):
     warps = [dp_warp(srvf(x[b]), srvf(y[b]), neighbourhood=4) for b in range(11)]
     monkeypatch.setattr(dp_numba, "PARALLEL_MIN_PAIRS", 2)
     monkeypatch.setattr(dp_numba, "PAIR_CHUNK", chunk)
+    monkeypatch.setattr(dp_numba, "idle_cores", lambda: 64)
     before = numba.get_num_threads()
     numba.set_num_threads(min(2, numba.config.NUMBA_NUM_THREADS))
     try:
@@ -108,3 +113,14 @@ def test_chunked_threads_equal_single_calls(monkeypatch, chunk):
         for one, many in zip(singles[b], batch):
             assert torch.equal(one, many[b])
         assert torch.equal(warps[b].gamma, dp.gamma[b]) and torch.equal(warps[b].energy, dp.energy[b])
+
+
+def test_busy_cores_keep_a_batch_on_the_calling_thread(monkeypatch):
+    """No idle core: a big batch stays on the calling thread (a woken thread would only queue for a busy core)."""
+    import numba
+
+    monkeypatch.setattr(dp_numba, "idle_cores", lambda: 0)
+    assert dp_numba.pair_threads(64 * dp_numba.PARALLEL_MIN_PAIRS) == 1
+    monkeypatch.setattr(dp_numba, "idle_cores", lambda: 1)
+    assert dp_numba.pair_threads(64 * dp_numba.PARALLEL_MIN_PAIRS) == min(2, numba.get_num_threads())
+    assert 0 <= dp_numba.idle_cores() < (os.cpu_count() or 1)

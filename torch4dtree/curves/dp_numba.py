@@ -54,12 +54,28 @@ _POOL_LOCK = threading.Lock()
 _COMPILE_LOCK = threading.Lock()
 
 
+def idle_cores() -> int:
+    """Cores of this process's CPU set that no runnable thread holds right now, besides the caller's own: the
+    kernel's count of runnable threads (``/proc/loadavg``, Linux; it includes the caller). Where that count is not
+    available, every other core of the set counts as idle."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    try:
+        with open("/proc/loadavg", encoding="ascii") as f:
+            running = int(f.read().split()[3].split("/")[0])
+    except (OSError, ValueError, IndexError):
+        return cores - 1
+    return max(cores - running, 0)
+
+
 def pair_threads(n_pairs: int) -> int:
     """Threads used for a batch of ``n_pairs``: 1 below ``2 * PARALLEL_MIN_PAIRS`` pairs, else up to
-    ``numba.get_num_threads()`` (which honours ``NUMBA_NUM_THREADS`` and ``numba.set_num_threads``)."""
+    ``numba.get_num_threads()`` (which honours ``NUMBA_NUM_THREADS`` and ``numba.set_num_threads``), one per
+    ``PARALLEL_MIN_PAIRS`` pairs, and the caller plus one per :func:`idle_cores` (a thread woken on a busy core only
+    queues for it)."""
     if not HAVE_NUMBA or n_pairs < 2 * PARALLEL_MIN_PAIRS:
         return 1
-    return max(1, min(numba.get_num_threads(), n_pairs // PARALLEL_MIN_PAIRS))
+    wanted = min(numba.get_num_threads(), n_pairs // PARALLEL_MIN_PAIRS)
+    return max(1, min(wanted, 1 + idle_cores())) if wanted > 1 else 1
 
 
 def _pool() -> ThreadPoolExecutor:
