@@ -24,7 +24,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-__all__ = ["DEFAULT_SIZES", "STAGES", "benchmark_scale", "growth_exponent", "run_stage", "write_dataset"]
+__all__ = ["DEFAULT_SIZES", "STAGES", "benchmark_scale", "format_table", "growth_exponent", "run_stage", "write_dataset"]
 
 # plants per run of the default benchmark (the sizes; about 15 minutes on 2 idle cores)
 DEFAULT_SIZES = (25, 50, 100, 200)
