@@ -85,7 +85,11 @@ def gram_axes(aligned: AlignedTrees, k_of: Callable[[Tensor], int]) -> tuple[Ten
         if k > len(var) or not bool(sing[-1] >= GRAM_MIN_SHARE * sing[0]) or not bool(sing[0] > 0):
             return None
         left = evecs[:, :k] / sing  # (n, k): components = left^T Xc
-        comps = torch.cat([left.T @ (blk - mu) for blk, mu in zip(feature_blocks(aligned), means)], dim=1)
+        comps = gram.new_empty(k, sum(len(mu) for mu in means))
+        at = 0
+        for blk, mu in zip(feature_blocks(aligned), means):
+            torch.matmul(left.T, blk - mu, out=comps[:, at:at + len(mu)])
+            at += len(mu)
     return torch.cat(means), var, comps, total
 
 
@@ -231,7 +235,7 @@ class TreePCA(FittedModule):
         ratio = var / total
         k = comps.shape[0]
         big = comps.abs().argmax(1, keepdim=True)
-        comps = comps * torch.sign(comps.gather(1, big))  # deterministic signs
+        comps = comps.mul_(torch.sign(comps.gather(1, big)))  # deterministic signs (in place: comps is ours)
         self.lambdas, self.M, self.d = aligned.lambdas, M, d
         self.n_samples_, self.total_variance_ = n, total
         self._set_fitted(mean=mean, components=comps, explained_variance=var[:k], explained_variance_ratio=ratio[:k],
