@@ -415,7 +415,13 @@ def test_pca_gram_path_gives_the_svd_components(fitted, monkeypatch, n_component
     aligned = fitted[1].aligned
     blocks = list(P.feature_blocks(aligned, columns=7))
     assert torch.equal(torch.cat(blocks, dim=1), aligned.features())
+    assert aligned.features().numel() * 8 < P.GRAM_MIN_BYTES  # small fits keep the SVD ...
+    monkeypatch.setattr(P, "GRAM_MIN_BYTES", 0)  # ... here the Gram path runs
+    used = []
+    real = P.gram_axes
+    monkeypatch.setattr(P, "gram_axes", lambda *a: used.append(1) or real(*a))
     gram = TreePCA(n_components=n_components).fit(aligned)
+    assert used
     monkeypatch.setattr(P, "gram_axes", lambda *a: None)
     svd = TreePCA(n_components=n_components).fit(aligned)
     assert gram.n_components_ == svd.n_components_

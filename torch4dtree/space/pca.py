@@ -29,6 +29,9 @@ DECODE_MIN_FRACTION = 0.01
 # the Gram path (gram_axes) keeps components whose singular value is at least this share of the largest: its
 # components then agree with the SVD's to about eps / GRAM_MIN_SHARE^2 (1e-10); a smaller kept one takes the SVD
 GRAM_MIN_SHARE = 1e-3
+# dense features from this size up (bytes) take the Gram path in TreePCA.fit; smaller fits keep the SVD of the dense
+# features (results identical to the last bit there; their memory is small anyway)
+GRAM_MIN_BYTES = 1 << 26
 # feature columns per block of the Gram path (a few MB of float64 per tree): the dense (n, F) features are never
 # built, only one block of them at a time
 GRAM_BLOCK_COLUMNS = 1 << 16
@@ -208,17 +211,18 @@ class TreePCA(FittedModule):
         """Fit on ``n >= 2`` trees in one layout (principal axes of the centred ``aligned.features()``). Returns
         ``self``.
 
-        With fewer trees than features in float64, through the trees' Gram matrix block by block (:func:`gram_axes`:
-        memory of the ``(n, n)`` Gram matrix and the components, not of the dense features); otherwise, or where a
-        kept component is too weak for the Gram matrix's precision, the SVD of the dense features. The two agree to
-        rounding (the components to about 1e-10)."""
+        With dense features of at least ``GRAM_MIN_BYTES``, fewer trees than features and float64, through the trees'
+        Gram matrix block by block (:func:`gram_axes`: memory of the ``(n, n)`` Gram matrix and the components, not of
+        the dense features); otherwise, or where a kept component is too weak for the Gram matrix's precision, the SVD
+        of the dense features. The two agree to rounding (the components to about 1e-10)."""
         if not isinstance(aligned, AlignedTrees):
             raise TypeError(f"expected AlignedTrees, got {type(aligned).__name__}")
         n, S, M, d = aligned.q.shape
         if n < 2:
             raise ValueError(f"PCA needs at least 2 trees, got {n}")
         F = S * M * d + S - 1
-        gram = gram_axes(aligned, self._k_of) if n < F and aligned.q.dtype == torch.float64 else None
+        big = n * F * aligned.q.element_size() >= GRAM_MIN_BYTES
+        gram = gram_axes(aligned, self._k_of) if big and n < F and aligned.q.dtype == torch.float64 else None
         if gram is not None:
             mean, var, comps, total = gram
         else:
@@ -234,8 +238,8 @@ class TreePCA(FittedModule):
             comps = Vh[: self._k_of(var)]
         ratio = var / total
         k = comps.shape[0]
-        big = comps.abs().argmax(1, keepdim=True)
-        comps = comps.mul_(torch.sign(comps.gather(1, big)))  # deterministic signs (in place: comps is ours)
+        top = comps.abs().argmax(1, keepdim=True)
+        comps = comps.mul_(torch.sign(comps.gather(1, top)))  # deterministic signs (in place: comps is ours)
         self.lambdas, self.M, self.d = aligned.lambdas, M, d
         self.n_samples_, self.total_variance_ = n, total
         self._set_fitted(mean=mean, components=comps, explained_variance=var[:k], explained_variance_ratio=ratio[:k],
