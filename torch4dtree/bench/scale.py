@@ -24,7 +24,8 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-__all__ = ["DEFAULT_SIZES", "STAGES", "benchmark_scale", "format_table", "growth_exponent", "run_stage", "write_dataset"]
+__all__ = ["DEFAULT_SIZES", "STAGES", "benchmark_scale", "format_table", "growth_exponent", "run_stage",
+           "write_dataset"]
 
 # plants per run of the default benchmark (the issue's sizes; about 15 minutes on 2 idle cores)
 DEFAULT_SIZES = (25, 50, 100, 200)
@@ -220,7 +221,13 @@ def benchmark_scale(sizes: Sequence[int] = DEFAULT_SIZES, frames: int = DEFAULT_
 
 
 def format_table(result: dict[str, Any]) -> str:
-    """The benchmark as text: seconds and peak MB per stage and size, the growth exponents and the speed-ups."""
+    """The benchmark as text: seconds and peak MB per stage and size, the growth exponents and the speed-ups.
+
+    Example:
+        >>> r = {"sizes": [10], "frames": 3, "T": 16, "cpus": 2, "rows": [], "exponents": {}, "speedup": {}}
+        >>> format_table(r).splitlines()[0]
+        'synthetic tomatoes, 3 frames, T = 16, 2 CPUs; each stage in a fresh process'
+    """
     sizes = result["sizes"]
     names = list(result["exponents"])
     cell = {(r["stage"], r["size"]): r for r in result["rows"]}
