@@ -1,5 +1,7 @@
 """The numba driver: threads chosen by batch size (same results either way) and the compile notice."""
 
+import os
+
 import numpy as np
 import pytest
 import torch
@@ -15,6 +17,7 @@ def curves(n: int, T: int, seed: int) -> torch.Tensor:
 
 
 def test_small_batches_stay_on_the_calling_thread(monkeypatch):
+    monkeypatch.setattr(dp_numba, "idle_cores", lambda: 64)
     assert dp_numba.pair_threads(1) == 1
     assert dp_numba.pair_threads(2 * dp_numba.PARALLEL_MIN_PAIRS - 1) == 1
     big = dp_numba.pair_threads(64 * dp_numba.PARALLEL_MIN_PAIRS)
@@ -39,6 +42,7 @@ def test_threads_change_no_result(monkeypatch):
     real_pool = dp_numba._pool
     monkeypatch.setattr(dp_numba, "_pool", lambda: used.append(1) or real_pool())
     monkeypatch.setattr(dp_numba, "PARALLEL_MIN_PAIRS", 3)  # 4 threads' worth of pairs
+    monkeypatch.setattr(dp_numba, "idle_cores", lambda: 64)
     threaded = register_curves(y, x, rotation="vertical")
     assert used, "the threaded path did not run"
     for a, b in zip(serial, threaded):
@@ -82,3 +86,41 @@ def test_warm_up_then_no_notice(capsys):
     out = dp_numba.run_pairs(False, np.zeros((0, 7, 3)), np.zeros((0, 7, 3)), False,
                              dp_numba.step_arrays(2) * 2, np.zeros(9, np.int64), np.zeros(3), 0.0)
     assert [o.shape for o in out] == [(0,), (0,), (0, 8), (0, 3, 3), (0, 1, 0), (0, 0, 0)]
+
+
+@pytest.mark.parametrize("chunk", [1, 3, 64])
+def test_chunked_threads_equal_single_calls(monkeypatch, chunk):
+    """A batch shared between threads in chunks (any chunk size) gives every pair bit for bit what a single call
+    gives: registrations with a rotation and the tree solver's DP warps."""
+    import numba
+
+    from torch4dtree.curves import dp_warp, srvf
+
+    x, y = curves(11, 40, 4), curves(11, 40, 5)
+    singles = [register_curves(y[b], x[b], rotation="so3") for b in range(11)]
+    warps = [dp_warp(srvf(x[b]), srvf(y[b]), neighbourhood=4) for b in range(11)]
+    monkeypatch.setattr(dp_numba, "PARALLEL_MIN_PAIRS", 2)
+    monkeypatch.setattr(dp_numba, "PAIR_CHUNK", chunk)
+    monkeypatch.setattr(dp_numba, "idle_cores", lambda: 64)
+    before = numba.get_num_threads()
+    numba.set_num_threads(min(2, numba.config.NUMBA_NUM_THREADS))
+    try:
+        batch = register_curves(y, x, rotation="so3")
+        dp = dp_warp(srvf(x), srvf(y), neighbourhood=4)
+    finally:
+        numba.set_num_threads(before)
+    for b in range(11):
+        for one, many in zip(singles[b], batch):
+            assert torch.equal(one, many[b])
+        assert torch.equal(warps[b].gamma, dp.gamma[b]) and torch.equal(warps[b].energy, dp.energy[b])
+
+
+def test_busy_cores_keep_a_batch_on_the_calling_thread(monkeypatch):
+    """No idle core: a big batch stays on the calling thread (a woken thread would only queue for a busy core)."""
+    import numba
+
+    monkeypatch.setattr(dp_numba, "idle_cores", lambda: 0)
+    assert dp_numba.pair_threads(64 * dp_numba.PARALLEL_MIN_PAIRS) == 1
+    monkeypatch.setattr(dp_numba, "idle_cores", lambda: 1)
+    assert dp_numba.pair_threads(64 * dp_numba.PARALLEL_MIN_PAIRS) == min(2, numba.get_num_threads())
+    assert 0 <= dp_numba.idle_cores() < (os.cpu_count() or 1)

@@ -404,3 +404,39 @@ def test_principal_axes_are_the_svd_of_the_rows(shape: tuple[int, int]) -> None:
     torch.testing.assert_close((x @ axes.T) @ axes, x)
     # the axes come in the order of the singular values: x's energy along axis i is sing[i]^2
     torch.testing.assert_close((x @ axes.T).square().sum(0), sing.square())
+
+
+@pytest.mark.parametrize("n_components", [None, 2])
+def test_pca_gram_path_gives_the_svd_components(fitted, monkeypatch, n_components):
+    """The Gram path (the fit's memory-light default) and the SVD of the dense features give the same mean, variances
+    and components (up to rounding; signs fixed the same way), and feature blocks are the features."""
+    import torch4dtree.space.pca as P
+
+    aligned = fitted[1].aligned
+    blocks = list(P.feature_blocks(aligned, columns=7))
+    assert torch.equal(torch.cat(blocks, dim=1), aligned.features())
+    assert aligned.features().numel() * 8 < P.GRAM_MIN_BYTES  # small fits keep the SVD ...
+    monkeypatch.setattr(P, "GRAM_MIN_BYTES", 0)  # ... here the Gram path runs
+    used = []
+    real = P.gram_axes
+    monkeypatch.setattr(P, "gram_axes", lambda *a: used.append(1) or real(*a))
+    gram = TreePCA(n_components=n_components).fit(aligned)
+    assert used
+    monkeypatch.setattr(P, "gram_axes", lambda *a: None)
+    svd = TreePCA(n_components=n_components).fit(aligned)
+    assert gram.n_components_ == svd.n_components_
+    assert torch.allclose(gram.mean, svd.mean, rtol=0, atol=1e-14)
+    assert torch.allclose(gram.explained_variance, svd.explained_variance, rtol=1e-10, atol=0)
+    assert torch.allclose(gram.components, svd.components, rtol=0, atol=1e-9)
+    assert gram.total_variance_ == pytest.approx(svd.total_variance_, rel=1e-12)
+
+
+def test_pca_gram_path_falls_back_on_weak_components(fitted, monkeypatch):
+    """A kept component weaker than GRAM_MIN_SHARE of the first takes the SVD path."""
+    import torch4dtree.space.pca as P
+
+    aligned = fitted[1].aligned
+    n = aligned.q.shape[0]
+    assert P.gram_axes(aligned, lambda var: 1) is not None
+    monkeypatch.setattr(P, "GRAM_MIN_SHARE", 2.0)  # every component but the first counts as weak
+    assert P.gram_axes(aligned, lambda var: min(2, n)) is None

@@ -18,19 +18,24 @@ PHENO4D_HELP = ("The Pheno4D skeletons are not part of this repository: they are
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("what", choices=["curves", "trees", "4d", "all"],
+    p.add_argument("what", choices=["curves", "trees", "4d", "all", "scale"],
                    help="curves: curve registration vs fdasrsf (random, helix and, if present, Pheno4D curves); "
                         "trees: all consecutive-day Pheno4D pairs vs the paper (needs the Pheno4D skeletons); "
                         "4d: spatiotemporal registration of Pheno4D plants, temporal registration, 4D geodesics; "
                         "all: curves, trees, 4d and the generative model (fit, 4D mean, sampling, decoding) at "
                         "moderate sizes (a few minutes), with ratios against the paper and fdasrsf (the Pheno4D "
-                        "parts are skipped, with a note, when the data is missing)")
+                        "parts are skipped, with a note, when the data is missing); "
+                        "scale: time and peak memory of reading, fitting (both models) and all-pairs distances of "
+                        "synthetic tomatoes at --sizes plants, each stage in a fresh process, with growth exponents "
+                        "and the all-pairs speed-up of 2 workers over 1 (docs/scaling.md; about 15 minutes)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--quick", action="store_true", help="all: tiny sizes (about a minute), for a first look")
     p.add_argument("--pairs", type=positive_int, default=1000, metavar="N",
                    help="curves: pairs in the batched measurement (default: %(default)s; all uses its own sizes)")
     p.add_argument("--points", type=int_at_least(4), default=100, metavar="T",
                    help="curves: points per curve (default: %(default)s; all uses its own sizes)")
+    p.add_argument("--sizes", type=positive_int, nargs="+", default=None, metavar="N",
+                   help="scale: plants per run (default: 25 50 100 200)")
     p.add_argument("--data", type=Path, default=None, metavar="DIR",
                    help="the Pheno4D folder holding swc/ (default: $TORCH4DTREE_PHENO4D, else "
                         "../shared/data/pheno4d beside the repository)")
@@ -59,6 +64,17 @@ def run(args: argparse.Namespace) -> int:
     root = _data_root(args)
     if args.quick and args.what != "all":
         raise UsageError("--quick applies to 'benchmark all' only")
+    if args.sizes is not None and args.what != "scale":
+        raise UsageError("--sizes applies to 'benchmark scale' only")
+    if args.what == "scale":
+        import sys
+
+        from ..bench.scale import DEFAULT_SIZES, benchmark_scale, format_table
+
+        result = benchmark_scale(args.sizes or DEFAULT_SIZES,
+                                 log=lambda line: print(f"torch4dtree benchmark scale: {line}", file=sys.stderr))
+        print(json.dumps(result) if args.json else format_table(result))
+        return 0
     if args.what == "all":
         import sys
 

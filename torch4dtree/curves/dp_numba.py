@@ -4,12 +4,14 @@ kernels of :mod:`.kernels_numba`.
 See :mod:`torch4dtree.curves.register` for the energy and the lattice. ``nb_pairs`` is the only kernel called from
 Python, so the whole engine is one compiled signature (a cold compile of each extra entry point would repeat most of
 the work; compiled once and cached on disk). Batches of at least ``2 * PARALLEL_MIN_PAIRS`` pairs are shared between
-threads (the kernel releases the GIL); smaller ones run on the calling thread alone. The first compile in a process
-prints a one-line notice.
+threads (the kernel releases the GIL) in chunks of ``PAIR_CHUNK`` pairs handed out on demand; smaller ones run on the
+calling thread alone. Every pair's result is computed alone, so it is the same whatever the batch, chunk or thread.
+The first compile in a process prints a one-line notice.
 """
 
 from __future__ import annotations
 
+import itertools
 import os
 import sys
 import threading
@@ -41,18 +43,39 @@ except ImportError:  # pragma: no cover - exercised only without numba
 # waking a second thread costs more than it saves, and on a machine whose other cores are busy the
 # woken thread can wait a whole scheduler time slice (milliseconds) for a core.
 PARALLEL_MIN_PAIRS = 16
+# Pairs a thread takes at a time from a shared batch (benchmarks/bench_batch.py, docs/experiments.md): the calling
+# thread keeps taking chunks until none is left, so a helper thread that waits for a core (the other cores busy) holds
+# up at most one chunk instead of a fixed share of the batch; large enough that the per-call overhead of the kernel
+# (a few microseconds against about 0.3 ms a pair at T = 100) stays negligible.
+PAIR_CHUNK = 4
 
 _POOL: ThreadPoolExecutor | None = None
 _POOL_LOCK = threading.Lock()
 _COMPILE_LOCK = threading.Lock()
 
 
+def idle_cores() -> int:
+    """Cores of this process's CPU set that no runnable thread holds right now, besides the caller's own: the
+    kernel's count of runnable threads (``/proc/loadavg``, Linux; it includes the caller). Where that count is not
+    available, every other core of the set counts as idle."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    try:
+        with open("/proc/loadavg", encoding="ascii") as f:
+            running = int(f.read().split()[3].split("/")[0])
+    except (OSError, ValueError, IndexError):
+        return cores - 1
+    return max(cores - running, 0)
+
+
 def pair_threads(n_pairs: int) -> int:
     """Threads used for a batch of ``n_pairs``: 1 below ``2 * PARALLEL_MIN_PAIRS`` pairs, else up to
-    ``numba.get_num_threads()`` (which honours ``NUMBA_NUM_THREADS`` and ``numba.set_num_threads``)."""
+    ``numba.get_num_threads()`` (which honours ``NUMBA_NUM_THREADS`` and ``numba.set_num_threads``), one per
+    ``PARALLEL_MIN_PAIRS`` pairs, and the caller plus one per :func:`idle_cores` (a thread woken on a busy core only
+    queues for it)."""
     if not HAVE_NUMBA or n_pairs < 2 * PARALLEL_MIN_PAIRS:
         return 1
-    return max(1, min(numba.get_num_threads(), n_pairs // PARALLEL_MIN_PAIRS))
+    wanted = min(numba.get_num_threads(), n_pairs // PARALLEL_MIN_PAIRS)
+    return max(1, min(wanted, 1 + idle_cores())) if wanted > 1 else 1
 
 
 def _pool() -> ThreadPoolExecutor:
@@ -119,7 +142,7 @@ def _first_call(*args: object, hint: bool = True) -> float | None:
 
 def run_pairs(curves: bool, mov: np.ndarray, ref: np.ndarray, srvf_input: bool, steps: tuple[np.ndarray, ...],
               cfg: np.ndarray, up: np.ndarray, tol: float) -> tuple[np.ndarray, ...]:
-    """Run :func:`nb_pairs` over a batch on :func:`pair_threads` threads (the calling thread takes a share).
+    """Run :func:`nb_pairs` over a batch on :func:`pair_threads` threads (the calling thread takes chunks too).
 
     ``steps = (A, Bs, Af, Bf)``. Returns ``energy (B,), before (B,), gamma (B, T), O (B, d, d), registered
     (B, T, d), q_reg (B, T-1, d)``; the last two are empty ``(0, 0, 0)`` arrays unless ``curves``.
@@ -130,18 +153,26 @@ def run_pairs(curves: bool, mov: np.ndarray, ref: np.ndarray, srvf_input: bool, 
     outs = (np.empty(B), np.empty(B), np.empty((B, T)), np.empty((B, d, d)), np.empty(shape),
             np.empty((shape[0], shape[1] - 1, shape[2])))
 
-    def share(start: int, step: int) -> None:
-        nb_pairs(bool(curves), mov, ref, bool(srvf_input), *steps, cfg, up, float(tol), start, step, *outs)
+    def pairs(a: int, b: int) -> None:  # pairs a..b-1 (views of contiguous rows: the same compiled signature)
+        nb_pairs(bool(curves), mov[a:b], ref[a:b], bool(srvf_input), *steps, cfg, up, float(tol), 0, 1,
+                 *(o[a:b] for o in outs))
 
     if not _READY:
         _first_call(bool(curves), mov[:0], ref[:0], bool(srvf_input), *steps, cfg, up, float(tol), 0, 1, *outs)
     threads = pair_threads(B)
     if threads == 1:
-        share(0, 1)
-    else:  # interleaved shares: neighbouring pairs often cost alike
-        futures = [_pool().submit(share, k, threads) for k in range(1, threads)]
-        share(0, threads)
-        for f in futures:
+        pairs(0, B)
+        return outs
+    chunks = itertools.count()  # next() is atomic under the GIL: each chunk goes to exactly one thread
+
+    def take() -> None:
+        while (a := next(chunks) * PAIR_CHUNK) < B:
+            pairs(a, min(a + PAIR_CHUNK, B))
+
+    futures = [_pool().submit(take) for _ in range(1, threads)]
+    take()
+    for f in futures:  # a helper that has not started yet is not waited for
+        if not f.cancel():
             f.result()
     return outs
 

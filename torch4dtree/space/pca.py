@@ -10,6 +10,7 @@ features, then to trees in the fitted layout.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Iterator
 from typing import Any, NamedTuple
 
 import torch
@@ -21,10 +22,19 @@ from ..trees.aligned import AlignedTrees, Lambdas, SlotRows, rows_to_trees, slot
 from ..trees.structures import Trees
 from .fitted import FittedModule, NotFittedError
 
-__all__ = ["TreePCA"]
+__all__ = ["TreePCA", "feature_blocks", "gram_axes"]
 
 # decode drops branches shorter than this fraction of the mean's main branch (see TreePCA.decode)
 DECODE_MIN_FRACTION = 0.01
+# the Gram path (gram_axes) keeps components whose singular value is at least this share of the largest: its
+# components then agree with the SVD's to about eps / GRAM_MIN_SHARE^2 (1e-10); a smaller kept one takes the SVD
+GRAM_MIN_SHARE = 1e-3
+# dense features from this size up (bytes) take the Gram path in TreePCA.fit; smaller fits keep the SVD of the dense
+# features (results identical to the last bit there; their memory is small anyway)
+GRAM_MIN_BYTES = 1 << 26
+# feature columns per block of the Gram path (a few MB of float64 per tree): the dense (n, F) features are never
+# built, only one block of them at a time
+GRAM_BLOCK_COLUMNS = 1 << 16
 
 
 def principal_axes(x: Tensor) -> tuple[Tensor, Tensor]:
@@ -38,6 +48,52 @@ def principal_axes(x: Tensor) -> tuple[Tensor, Tensor]:
         return sing, U.T
     _, sing, Vh = torch.linalg.svd(x, full_matrices=False)
     return sing, Vh
+
+
+def feature_blocks(aligned: AlignedTrees, columns: int = GRAM_BLOCK_COLUMNS) -> Iterator[Tensor]:
+    """Column blocks of ``aligned.features()`` (``(n, F_b)`` each, in order, about ``columns`` columns; the same
+    values), computed one at a time: concatenated they are the features, without the ``(n, F)`` matrix at once."""
+    n, S, M, d = aligned.q.shape
+    w_q, w_s = aligned.weights()
+    unit = (w_q / M).sqrt()
+    per = max(columns // (M * d), 1)
+    for a in range(0, S, per):
+        b = min(a + per, S)
+        yield (aligned.q[:, a:b] * unit[None, a:b, None, None]).reshape(n, (b - a) * M * d)
+    yield aligned.s[:, 1:] * w_s[1:].sqrt()
+
+
+def gram_axes(aligned: AlignedTrees, k_of: Callable[[Tensor], int]) -> tuple[Tensor, Tensor, Tensor, float] | None:
+    """The PCA of ``aligned.features()`` through the trees' Gram matrix, block by block (:func:`feature_blocks`).
+
+    ``k_of(var)`` picks the number of components from the variances ``(n,)`` (descending). Returns ``(mean (F,),
+    var (n,), components (k, F), total variance)``, with unnormalised signs, or ``None`` where a kept singular value
+    is below ``GRAM_MIN_SHARE`` of the largest (the caller then takes the SVD). Memory: the ``(n, n)`` Gram matrix,
+    the ``(k, F)`` components and one block, instead of the dense features and the SVD's copies of them.
+    Why: fitted on every frame of a population, the dense features and their SVD are the fit's largest arrays.
+    """
+    n = aligned.q.shape[0]
+    with torch.no_grad():
+        means = [blk.mean(0) for blk in feature_blocks(aligned)]
+        gram = aligned.q.new_zeros(n, n)
+        for blk, mu in zip(feature_blocks(aligned), means):
+            xc = blk - mu
+            gram += xc @ xc.T
+        evals, evecs = torch.linalg.eigh(gram)
+        evals, evecs = evals.flip(0).clamp_min(0.0), evecs.flip(1)
+        total = float(gram.diagonal().sum()) / (n - 1)
+        var = evals / (n - 1)
+        k = k_of(var)
+        sing = evals[:k].sqrt()
+        if k > len(var) or not bool(sing[-1] >= GRAM_MIN_SHARE * sing[0]) or not bool(sing[0] > 0):
+            return None
+        left = evecs[:, :k] / sing  # (n, k): components = left^T Xc
+        comps = gram.new_empty(k, sum(len(mu) for mu in means))
+        at = 0
+        for blk, mu in zip(feature_blocks(aligned), means):
+            torch.matmul(left.T, blk - mu, out=comps[:, at:at + len(mu)])
+            at += len(mu)
+    return torch.cat(means), var, comps, total
 
 
 def variance_components(var: Tensor, variance: float) -> int:
@@ -152,36 +208,52 @@ class TreePCA(FittedModule):
 
     # ------------------------------------------------------------------------ fit
     def fit(self, aligned: AlignedTrees) -> TreePCA:
-        """Fit on ``n >= 2`` trees in one layout (SVD of the centred ``aligned.features()``). Returns ``self``."""
+        """Fit on ``n >= 2`` trees in one layout (principal axes of the centred ``aligned.features()``). Returns
+        ``self``.
+
+        With dense features of at least ``GRAM_MIN_BYTES``, fewer trees than features and float64, through the trees'
+        Gram matrix block by block (:func:`gram_axes`: memory of the ``(n, n)`` Gram matrix and the components, not of
+        the dense features); otherwise, or where a kept component is too weak for the Gram matrix's precision, the SVD
+        of the dense features. The two agree to rounding (the components to about 1e-10)."""
         if not isinstance(aligned, AlignedTrees):
             raise TypeError(f"expected AlignedTrees, got {type(aligned).__name__}")
         n, S, M, d = aligned.q.shape
         if n < 2:
             raise ValueError(f"PCA needs at least 2 trees, got {n}")
-        X = aligned.features().detach()
-        mean = X.mean(0)
-        Xc = X - mean
-        sing, Vh = principal_axes(Xc)
-        var = sing.square() / (n - 1)
-        total = float(Xc.square().sum()) / (n - 1)
-        if not total > 0:
-            raise ValueError("the trees do not vary (all features equal): no principal components")
-        ratio = var / total
-        if self.n_components is not None:
-            k = self.n_components
-            if k > len(var):
-                raise ValueError(f"n_components={k} > min(n_trees, n_features) = {len(var)}")
+        F = S * M * d + S - 1
+        big = n * F * aligned.q.element_size() >= GRAM_MIN_BYTES
+        gram = gram_axes(aligned, self._k_of) if big and n < F and aligned.q.dtype == torch.float64 else None
+        if gram is not None:
+            mean, var, comps, total = gram
         else:
-            k = variance_components(var, self.variance)
-        comps = Vh[:k]
-        big = comps.abs().argmax(1, keepdim=True)
-        comps = comps * torch.sign(comps.gather(1, big))  # deterministic signs
+            X = aligned.features().detach()
+            mean = X.mean(0)
+            Xc = X - mean
+            sing, Vh = principal_axes(Xc)
+            del X
+            var = sing.square() / (n - 1)
+            total = float(Xc.square().sum()) / (n - 1)
+            if not total > 0:
+                raise ValueError("the trees do not vary (all features equal): no principal components")
+            comps = Vh[: self._k_of(var)]
+        ratio = var / total
+        k = comps.shape[0]
+        top = comps.abs().argmax(1, keepdim=True)
+        comps = comps.mul_(torch.sign(comps.gather(1, top)))  # deterministic signs (in place: comps is ours)
         self.lambdas, self.M, self.d = aligned.lambdas, M, d
         self.n_samples_, self.total_variance_ = n, total
         self._set_fitted(mean=mean, components=comps, explained_variance=var[:k], explained_variance_ratio=ratio[:k],
                          mean_root=aligned.root.detach().mean(0), slot_parent=aligned.slot_parent,
                          slot_depth=aligned.slot_depth)
         return self
+
+    def _k_of(self, var: Tensor) -> int:
+        """Components to keep of the variances ``var`` (descending): ``n_components`` or the ``variance`` share."""
+        if self.n_components is None:
+            return variance_components(var, self.variance)
+        if self.n_components > len(var):
+            raise ValueError(f"n_components={self.n_components} > min(n_trees, n_features) = {len(var)}")
+        return self.n_components
 
     def fit_transform(self, aligned: AlignedTrees) -> Tensor:
         """``fit(aligned)`` then ``transform(aligned)``: ``(n, k)``."""
