@@ -2,8 +2,9 @@
 
 The observed plant is registered within itself and written in botanical keys (docs/method.md §5, forecasting).
 Its **stated conditional distribution** (:func:`forecast_distribution`): the training plants weighted by how close
-their total length and organ count at the observed age are to the plant's (the model's kernel, read at that age);
-a continuation draws one of them (the *donor*) by these weights and its final log total length as
+their total length and organ count at the observed age are to the plant's (the model's kernel, read at that age, its
+width chosen by leave-one-out over the training plants); a continuation draws one of them (the *donor*) by these
+weights and its final log total length as
 
     log L(1) = log L_donor(1) + beta * (log L(u_obs) - log L_donor(u_obs)) + jitter * eps,    eps ~ N(0, 1),
 
@@ -35,6 +36,9 @@ from .organs import OrganModel, assemble_frames, rotate_about_up
 
 __all__ = ["ForecastDistribution", "forecast_distribution", "forecast_organs"]
 
+# the donor kernel's widths (standard deviations of size and organ count at the observed age) that the forecast
+# chooses from by leave-one-out over the training plants; the widest is nearly the population as a whole
+BANDWIDTHS = (0.25, 0.5, 1.0, 2.0, 4.0)
 # a continuation whose organs add no length after the observed age (nothing left to grow) keeps the observed size
 NO_GROWTH = 1e-12
 
@@ -50,6 +54,7 @@ class ForecastDistribution:
         slope: ``beta``.
         log_length_now: the observed plant's log total length at its last observed frame.
         jitter: standard deviation of the Gaussian noise added to the log final length (the model's ``jitter``).
+        bandwidth: the donor kernel's width, chosen by leave-one-out over the training plants (:data:`BANDWIDTHS`).
     """
 
     age: float
@@ -58,6 +63,7 @@ class ForecastDistribution:
     slope: float
     log_length_now: float
     jitter: float
+    bandwidth: float
 
     @property
     def mean(self) -> Tensor:
@@ -89,6 +95,23 @@ def _plant_curves(model: OrganModel) -> tuple[Tensor, Tensor]:
     return total, count
 
 
+def _bandwidth(d2: Tensor, final: Tensor, shift: Tensor) -> float:
+    """The donor kernel's width (standard deviations, one of :data:`BANDWIDTHS`) that best predicts each training
+    plant's standardised final log length and log organ count ``final (P, 2)`` from the others' (leave-one-out squared
+    error): ``d2 (P, P)`` squared standardised distances between the plants at the observed age, ``shift (P, P)`` the
+    size adjustment of donor ``j`` for plant ``i`` (standardised log length). Ties go to the wider kernel."""
+    off = ~torch.eye(len(d2), dtype=torch.bool)
+    best, best_err = BANDWIDTHS[-1], math.inf
+    for h in reversed(BANDWIDTHS):
+        k = torch.exp(-0.5 * d2 / h ** 2) * off
+        k = k / k.sum(1, keepdim=True).clamp_min(torch.finfo(k.dtype).tiny)
+        pred = torch.stack([(k * (final[None, :, 0] + shift)).sum(1), (k * final[None, :, 1]).sum(1)], 1)
+        err = float((pred - final).square().sum())
+        if err < best_err - 1e-12:
+            best, best_err = h, err
+    return best
+
+
 def _observe(model: OrganModel, partial: TreeSequence) -> tuple[dict[tuple[int, ...], dict], ForecastDistribution]:
     """The observed organs by key (each at the last observed frame) and the stated distribution."""
     model.check_fitted()
@@ -103,15 +126,19 @@ def _observe(model: OrganModel, partial: TreeSequence) -> tuple[dict[tuple[int, 
     at = [torch.tensor([float(np.interp(u_obs, ages.numpy(), c.numpy())) for c in curve]) for curve in (total, count)]
     feats = torch.stack([a.log1p() for a in at], 1)  # (P, 2)
     scale = feats.std(0).clamp_min(1e-9)
-    w = torch.exp(-0.5 * ((feats - x.log1p()) / scale).square().sum(-1) / model.settings.bandwidth ** 2)
-    w = w / w.sum() if float(w.sum()) > 0 else torch.full_like(w, 1 / len(w))
     log_final, log_at = total[:, -1].clamp_min(NO_GROWTH).log(), at[0].clamp_min(NO_GROWTH).log()
     dx = log_at - log_at.mean()
     var = float(dx.square().sum())
     beta = min(max(float((dx * (log_final - log_final.mean())).sum()) / var, 0.0), 1.0) if var > 0 else 0.0
+    d2 = ((feats[:, None] - feats[None]) / scale).square().sum(-1)  # (P, P) between training plants
+    final = torch.stack([log_final, count[:, -1].log1p()], 1)
+    sd = final.std(0).clamp_min(1e-9)
+    bandwidth = _bandwidth(d2, final / sd, beta * (log_at[:, None] - log_at[None]) / sd[0])
+    w = torch.exp(-0.5 * ((feats - x.log1p()) / scale).square().sum(-1) / bandwidth ** 2)
+    w = w / w.sum() if float(w.sum()) > 0 else torch.full_like(w, 1 / len(w))
     log_now = math.log(max(now, NO_GROWTH))
     dist = ForecastDistribution(age=u_obs, weights=w, components=log_final + beta * (log_now - log_at), slope=beta,
-                                log_length_now=log_now, jitter=model.settings.jitter)
+                                log_length_now=log_now, jitter=model.settings.jitter, bandwidth=bandwidth)
     return observed, dist
 
 
