@@ -3,8 +3,8 @@
 The observed plant is registered within itself and written in botanical keys (docs/method.md §5, forecasting).
 Its **stated conditional distribution** (:func:`forecast_distribution`): the training plants weighted by how close
 their total length and organ count at the observed age are to the plant's (the model's kernel, read at that age, its
-width chosen by leave-one-out over the training plants); a continuation draws one of them (the *donor*) by these
-weights and its final log total length as
+width chosen by leave-one-out over the training plants, one-standard-error rule); a continuation draws one of them
+(the *donor*) by these weights and its final log total length as
 
     log L(1) = log L_donor(1) + beta * (log L(u_obs) - log L_donor(u_obs)) + jitter * eps,    eps ~ N(0, 1),
 
@@ -96,20 +96,23 @@ def _plant_curves(model: OrganModel) -> tuple[Tensor, Tensor]:
 
 
 def _bandwidth(d2: Tensor, final: Tensor, shift: Tensor) -> float:
-    """The donor kernel's width (standard deviations, one of :data:`BANDWIDTHS`) that best predicts each training
-    plant's standardised final log length and log organ count ``final (P, 2)`` from the others' (leave-one-out squared
-    error): ``d2 (P, P)`` squared standardised distances between the plants at the observed age, ``shift (P, P)`` the
-    size adjustment of donor ``j`` for plant ``i`` (standardised log length). Ties go to the wider kernel."""
+    """The donor kernel's width (standard deviations, one of :data:`BANDWIDTHS`) for predicting each training
+    plant's standardised final log length and log organ count ``final (P, 2)`` from the others (leave-one-out squared
+    error): the widest whose mean error is within one standard error of the best width's (a narrow kernel wins only
+    where it predicts clearly better; it draws from fewer donors). ``d2 (P, P)``: squared standardised distances
+    between the plants at the observed age; ``shift (P, P)``: the size adjustment of donor ``j`` for plant ``i``
+    (standardised log length)."""
     off = ~torch.eye(len(d2), dtype=torch.bool)
-    best, best_err = BANDWIDTHS[-1], math.inf
-    for h in reversed(BANDWIDTHS):
+    errors = []
+    for h in BANDWIDTHS:
         k = torch.exp(-0.5 * d2 / h ** 2) * off
         k = k / k.sum(1, keepdim=True).clamp_min(torch.finfo(k.dtype).tiny)
         pred = torch.stack([(k * (final[None, :, 0] + shift)).sum(1), (k * final[None, :, 1]).sum(1)], 1)
-        err = float((pred - final).square().sum())
-        if err < best_err - 1e-12:
-            best, best_err = h, err
-    return best
+        errors.append((pred - final).square().sum(1))  # (P,) per plant
+    means = torch.stack([e.mean() for e in errors])
+    best = int(means.argmin())
+    bound = float(means[best] + errors[best].std() / math.sqrt(len(d2)))
+    return max(h for h, m in zip(BANDWIDTHS, means.tolist()) if m <= bound)
 
 
 def _observe(model: OrganModel, partial: TreeSequence) -> tuple[dict[tuple[int, ...], dict], ForecastDistribution]:
