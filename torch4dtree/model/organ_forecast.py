@@ -1,16 +1,30 @@
 """Forecasting with :class:`~torch4dtree.model.organs.OrganModel`: the same model, given a plant's first frames.
 
 The observed plant is registered within itself and written in botanical keys (docs/method.md §5, forecasting).
-The training plants are weighted by how close their total length and organ count at the observed age are to the
-plant's (the kernel of the model, read at that age instead of at the end). Then key by key, as in sampling, every
-organ follows a training plant (persistence and switches): an observed organ keeps its size, shape and place at the
-last observed frame and grows on by what its donor organ grows from that age; an organ not yet there appears where
-its donor's organ appears after that age. Observed organs at keys the training plants never had are left out.
+Its **stated conditional distribution** (:func:`forecast_distribution`): the training plants weighted by how close
+their total length and organ count at the observed age are to the plant's (the model's kernel, read at that age, its
+width chosen by leave-one-out over the training plants, one-standard-error rule); a continuation draws one of them
+(the *donor*) by these weights and its final log total length as
+
+    log L(1) = log L_donor(1) + beta * (log L(u_obs) - log L_donor(u_obs)) + jitter * eps,    eps ~ N(0, 1),
+
+the donor's final length moved by the share ``beta`` of how much larger the plant is now (``beta`` the least-squares
+slope of log L(1) on log L(u_obs) over the training plants, clipped to [0, 1]: 1 when size now is all that tells
+plants apart later, 0 when it tells nothing): a Gaussian mixture over the donors with the stated mean and variance.
+
+The organs then follow the donor as in sampling (persistence and switches): an observed organ keeps its size, shape
+and place (arc length along its parent) at the last observed frame and grows on as its donor organ grows after that
+age; new organs are the donor's organs on the corresponding parent beyond the plant's own (by rank along the
+parent), appended after the observed ones. The new organs' sizes are scaled by one factor so that the final frame's
+total length is the drawn one (where the observed organs' growth alone passes it, that growth is scaled down instead
+and no new organ grows; the draw is met unless it is below the observed length). Observed organs at keys no
+training plant has stay as seen.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -20,7 +34,52 @@ from ..trees.structures import TreeSequence
 from .organ_table import azimuth, plant_organs
 from .organs import OrganModel, assemble_frames, rotate_about_up
 
-__all__ = ["forecast_organs"]
+__all__ = ["ForecastDistribution", "forecast_distribution", "forecast_organs"]
+
+# the donor kernel's widths (standard deviations of size and organ count at the observed age) that the forecast
+# chooses from by leave-one-out over the training plants; the widest is nearly the population as a whole
+BANDWIDTHS = (0.25, 0.5, 1.0, 2.0, 4.0)
+# a continuation whose organs add no length after the observed age (nothing left to grow) keeps the observed size
+NO_GROWTH = 1e-12
+
+
+@dataclass
+class ForecastDistribution:
+    """The forecast's stated conditional distribution of a plant's final log total length (module doc).
+
+    Attributes:
+        age: the observed normalised age ``u_obs`` (the last observed frame's time on the model's age scale).
+        weights: ``(P,)`` each training plant's chance to be the donor (sum 1).
+        components: ``(P,)`` the mean final log total length with each training plant as the donor.
+        slope: ``beta``.
+        log_length_now: the observed plant's log total length at its last observed frame.
+        jitter: standard deviation of the Gaussian noise added to the log final length (the model's ``jitter``).
+        bandwidth: the donor kernel's width, chosen by leave-one-out over the training plants (:data:`BANDWIDTHS`).
+    """
+
+    age: float
+    weights: Tensor
+    components: Tensor
+    slope: float
+    log_length_now: float
+    jitter: float
+    bandwidth: float
+
+    @property
+    def mean(self) -> Tensor:
+        """``(1,)`` mean of the final log total length."""
+        return (self.weights * self.components).sum().reshape(1)
+
+    @property
+    def covariance(self) -> Tensor:
+        """``(1, 1)`` its variance: the donors' spread plus the jitter's."""
+        return ((self.weights * (self.components - self.mean).square()).sum() + self.jitter ** 2).reshape(1, 1)
+
+    def draw(self, generator: torch.Generator) -> tuple[int, float]:
+        """One donor plant and final log total length from the distribution."""
+        donor = int(torch.multinomial(self.weights, 1, generator=generator))
+        eps = float(torch.randn((), generator=generator, dtype=torch.float64))
+        return donor, float(self.components[donor]) + self.jitter * eps
 
 
 def _plant_curves(model: OrganModel) -> tuple[Tensor, Tensor]:
@@ -36,13 +95,87 @@ def _plant_curves(model: OrganModel) -> tuple[Tensor, Tensor]:
     return total, count
 
 
+def _bandwidth(d2: Tensor, final: Tensor, shift: Tensor) -> float:
+    """The donor kernel's width (standard deviations, one of :data:`BANDWIDTHS`) for predicting each training
+    plant's standardised final log length and log organ count ``final (P, 2)`` from the others (leave-one-out squared
+    error): the widest whose mean error is within one standard error of the best width's (a narrow kernel wins only
+    where it predicts clearly better; it draws from fewer donors). ``d2 (P, P)``: squared standardised distances
+    between the plants at the observed age; ``shift (P, P)``: the size adjustment of donor ``j`` for plant ``i``
+    (standardised log length)."""
+    off = ~torch.eye(len(d2), dtype=torch.bool)
+    errors = []
+    for h in BANDWIDTHS:
+        k = torch.exp(-0.5 * d2 / h ** 2) * off
+        k = k / k.sum(1, keepdim=True).clamp_min(torch.finfo(k.dtype).tiny)
+        pred = torch.stack([(k * (final[None, :, 0] + shift)).sum(1), (k * final[None, :, 1]).sum(1)], 1)
+        errors.append((pred - final).square().sum(1))  # (P,) per plant
+    means = torch.stack([e.mean() for e in errors])
+    best = int(means.argmin())
+    bound = float(means[best] + errors[best].std() / math.sqrt(len(d2)))
+    return max(h for h, m in zip(BANDWIDTHS, means.tolist()) if m <= bound)
+
+
+def _observe(model: OrganModel, partial: TreeSequence) -> tuple[dict[tuple[int, ...], dict], ForecastDistribution]:
+    """The observed organs by key (each at the last observed frame) and the stated distribution."""
+    model.check_fitted()
+    ages = model.ages
+    u_obs = float(((partial.times[-1].double() - model.time_start) / model.duration).clamp(0, 1))
+    # the observed organs, each at the last observed frame (a single grid age of 1 is that frame)
+    observed = {tuple(o["key"]): o for o in plant_organs(partial, torch.ones(1, dtype=torch.float64),
+                                                         model.settings.registration)}
+    now = sum(o["length"] * float(o["growth"][-1]) for o in observed.values())
+    total, count = _plant_curves(model)
+    x = torch.tensor([now, float(sum(float(o["growth"][-1]) > 0 for o in observed.values()))], dtype=torch.float64)
+    at = [torch.tensor([float(np.interp(u_obs, ages.numpy(), c.numpy())) for c in curve]) for curve in (total, count)]
+    feats = torch.stack([a.log1p() for a in at], 1)  # (P, 2)
+    scale = feats.std(0).clamp_min(1e-9)
+    log_final, log_at = total[:, -1].clamp_min(NO_GROWTH).log(), at[0].clamp_min(NO_GROWTH).log()
+    dx = log_at - log_at.mean()
+    var = float(dx.square().sum())
+    beta = min(max(float((dx * (log_final - log_final.mean())).sum()) / var, 0.0), 1.0) if var > 0 else 0.0
+    d2 = ((feats[:, None] - feats[None]) / scale).square().sum(-1)  # (P, P) between training plants
+    final = torch.stack([log_final, count[:, -1].log1p()], 1)
+    sd = final.std(0).clamp_min(1e-9)
+    bandwidth = _bandwidth(d2, final / sd, beta * (log_at[:, None] - log_at[None]) / sd[0])
+    w = torch.exp(-0.5 * ((feats - x.log1p()) / scale).square().sum(-1) / bandwidth ** 2)
+    w = w / w.sum() if float(w.sum()) > 0 else torch.full_like(w, 1 / len(w))
+    log_now = math.log(max(now, NO_GROWTH))
+    dist = ForecastDistribution(age=u_obs, weights=w, components=log_final + beta * (log_now - log_at), slope=beta,
+                                log_length_now=log_now, jitter=model.settings.jitter, bandwidth=bandwidth)
+    return observed, dist
+
+
+def forecast_distribution(model: OrganModel, partial: TreeSequence) -> ForecastDistribution:
+    """The stated conditional distribution of :func:`forecast_organs` for a plant seen in ``partial`` (module doc):
+    the continuations' final log total lengths have its ``mean`` and ``covariance``.
+
+    Example:
+        >>> from torch4dtree.data.synthetic import synthetic_plant
+        >>> train = [synthetic_plant(kind="bean", seed=i, n_frames=4, T=16).sequence for i in range(3)]
+        >>> dist = forecast_distribution(OrganModel().fit(train), train[0][[0, 1]])
+        >>> dist.weights.shape, dist.covariance.shape, bool(dist.mean > dist.log_length_now)
+        (torch.Size([3]), torch.Size([1, 1]), True)
+    """
+    return _observe(model, partial)[1]
+
+
+def _holder(model: OrganModel, w: Tensor, key: int, g: torch.Generator) -> int:
+    """A training plant that has organ ``key``, drawn by the weights ``w`` (uniformly if they vanish there)."""
+    has = model.record[:, key] >= 0
+    p = torch.where(has, w, torch.zeros_like(w))
+    if not float(p.sum()) > 0:
+        p = has.to(torch.float64)
+    return int(torch.multinomial(p, 1, generator=g))
+
+
 def forecast_organs(model: OrganModel, partial: TreeSequence, n: int = 1, generator: torch.Generator | None = None
                     ) -> list[TreeSequence]:
-    """``n`` continuations of a plant seen in ``partial`` (its first frames, times in the training plants' units).
+    """``n`` continuations of a plant seen in ``partial`` (its first frames, times in the training plants' units),
+    drawn from :func:`forecast_distribution` (module doc).
 
     Returns:
         ``n`` 4D trees at the model's ages after the last observed one (:meth:`OrganModel.times`; at least the
-        last age), ``label`` = botanical key index.
+        last age), ``label`` = the organ's index in the continuation (one identity over its frames).
 
     Example:
         >>> from torch4dtree.data.synthetic import synthetic_plant
@@ -52,75 +185,97 @@ def forecast_organs(model: OrganModel, partial: TreeSequence, n: int = 1, genera
         >>> len(future), len(future[0]) >= 1
         (2, True)
     """
-    model.check_fitted()
     g = generator if generator is not None else torch.Generator().manual_seed(0)
+    observed, dist = _observe(model, partial)
     ages = model.ages
-    u_obs = float(((partial.times[-1].double() - model.time_start) / model.duration).clamp(0, 1))
-    future = ages > u_obs + 1e-9
+    future = ages > dist.age + 1e-9
     if not bool(future.any()):
         future[-1] = True
-    # the observed organs, each at the last observed frame (a single grid age of 1 is that frame)
-    observed = {tuple(o["key"]): o for o in plant_organs(partial, torch.ones(1, dtype=torch.float64),
-                                                         model.settings.registration)}
-    total, count = _plant_curves(model)
-    x = torch.tensor([sum(o["length"] * float(o["growth"][-1]) for o in observed.values()),
-                      float(sum(float(o["growth"][-1]) > 0 for o in observed.values()))], dtype=torch.float64)
-    at = [torch.tensor([float(np.interp(u_obs, ages.numpy(), c.numpy())) for c in curve]) for curve in (total, count)]
-    feats = torch.stack([a.log1p() for a in at], 1)  # (P, 2)
-    scale = feats.std(0).clamp_min(1e-9)
-    w = torch.exp(-0.5 * ((feats - x.log1p()) / scale).square().sum(-1) / model.settings.bandwidth ** 2)
-    w = w / w.sum() if float(w.sum()) > 0 else torch.full_like(w, 1 / len(w))
-    j_obs = int((ages - u_obs).abs().argmin())
-    has = model.record >= 0
-    G = len(ages)
+    j_obs = int((ages - dist.age).abs().argmin())
+    index = {k: i for i, k in enumerate(model.keys)}
+    children: list[list[int]] = [[] for _ in model.keys]
+    for k in range(1, len(model.keys)):
+        children[int(model.key_parent[k])].append(k)  # keys are sorted: siblings in rank order
     out = []
     for i in range(n):
-        sizes: dict[int, Tensor] = {}
-        shapes: dict[int, Tensor] = {}
-        s: dict[int, Tensor] = {}
-        donor_of: dict[int, int] = {}
-        az: dict[int, float] = {}  # each organ's azimuth in the forecast
-        for k, key in enumerate(model.keys):
-            cond = int(model.key_condition[k])
-            if k == 0:
-                donor = int(torch.multinomial(w, 1, generator=g))
-            else:
-                if cond not in donor_of:
-                    continue
-                donor = donor_of[cond]
-                if float(torch.rand((), generator=g, dtype=torch.float64)) >= model.settings.persistence:
-                    donor = int(torch.multinomial(torch.where(has[:, cond], w, torch.zeros_like(w)), 1, generator=g))
-            seen = observed.get(key)
-            r = int(model.record[donor, k])
-            if seen is None and (r < 0 or float(model.growth[r, j_obs]) > 0):
-                continue  # not there now, and its donor does not grow it later
-            if r < 0:  # observed, but this donor lacks it: any training plant with the key lends its growth
-                holders = torch.nonzero(has[:, k]).reshape(-1)
-                if len(holders) == 0:
-                    continue
-                r = int(model.record[holders[0], k])
-            donor_of[k] = donor
-            if seen is not None:
-                now = seen["length"] * float(seen["growth"][-1])
-                donor_len = model.log_length[r].exp() * model.growth[r]
-                sizes[k] = now + (donor_len - donor_len[j_obs]).clamp_min(0.0)  # the donor's growth from now on
-                az[k] = float(azimuth(seen["shape"][-1]))
-                shapes[k] = rotate_about_up(model.shape[r], az[k] - float(model.azimuth[r]))
-                shapes[k][: j_obs + 1] = seen["shape"][-1]
-                s[k] = seen["s"][-1].expand(G).clone()
-            else:
-                parent = int(model.key_parent[k])
-                turn = (az[parent] - float(model.parent_azimuth[r]) if parent in az
-                        else 2 * math.pi * float(torch.rand((), generator=g, dtype=torch.float64)))
-                az[k] = float(model.azimuth[r]) + turn
-                sizes[k] = model.log_length[r].exp() * model.growth[r]
-                shapes[k] = rotate_about_up(model.shape[r], turn)
-                s[k] = model.s[r].clone()
-        if 0 not in sizes:  # the main branch is always observed; a model without its key keeps it as seen
-            main = observed[()]
-            sizes[0] = torch.full((G,), main["length"] * float(main["growth"][-1]), dtype=torch.float64)
-            shapes[0] = main["shape"][-1].expand(G, *main["shape"].shape[1:]).clone()
-            s[0] = torch.zeros(G, dtype=torch.float64)
-        plant = assemble_frames(sizes, shapes, s, model.key_parent, model.times().clone(), f"forecast_{i:03d}")
+        donor, log_final = dist.draw(g)
+        plant = _continuation(model, observed, donor, log_final, dist, j_obs, index, children, g, f"forecast_{i:03d}")
         out.append(plant[torch.nonzero(future).reshape(-1).tolist()])
     return out
+
+
+def _continuation(model: OrganModel, observed: dict[tuple[int, ...], dict], donor: int, log_final: float,
+                  dist: ForecastDistribution, j_obs: int, index: dict[tuple[int, ...], int],
+                  children: list[list[int]], g: torch.Generator, name: str) -> TreeSequence:
+    """One continuation given its donor plant and final log total length (module doc), at all the model's ages."""
+    G = len(model.ages)
+    w = dist.weights
+    fixed: list[Tensor] = []  # per organ: its size at the observed age (kept), and what it grows after
+    grow: list[Tensor] = []
+    shapes: list[Tensor] = []
+    s: list[Tensor] = []
+    parent: list[int] = []
+    az: list[float] = []
+    source: list[tuple[int, int, bool]] = []  # per organ: its donor plant, the donor's key (-1: none), observed
+    local = {}
+    for key, o in observed.items():  # parents first
+        if key and key[:-1] not in local:
+            continue
+        k = index.get(key, -1)
+        plant = donor if k >= 0 and int(model.record[donor, k]) >= 0 else (_holder(model, w, k, g) if k >= 0 else -1)
+        now = o["length"] * float(o["growth"][-1])
+        a = float(azimuth(o["shape"][-1]))
+        shape = o["shape"][-1].expand(G, *o["shape"].shape[1:]).clone()
+        inc = torch.zeros(G, dtype=torch.float64)
+        if plant >= 0:
+            r = int(model.record[plant, k])
+            donor_len = model.log_length[r].exp() * model.growth[r]
+            inc = (donor_len - donor_len[j_obs]).clamp_min(0.0)
+            inc[: j_obs + 1] = 0.0
+            shape[j_obs + 1:] = rotate_about_up(model.shape[r], a - float(model.azimuth[r]))[j_obs + 1:]
+        local[key] = len(fixed)
+        fixed.append(torch.full((G,), now, dtype=torch.float64))
+        grow.append(inc)
+        shapes.append(shape)
+        s.append(o["s"][-1].expand(G).clone())
+        parent.append(local[key[:-1]] if key else -1)
+        az.append(a)
+        source.append((plant, k, True))
+    # new organs: each organ's donor (or, by switching, another plant with that organ) lends its later children
+    j = 0
+    while j < len(fixed):
+        plant, k, was_seen = source[j]
+        if k >= 0:
+            if float(torch.rand((), generator=g, dtype=torch.float64)) >= model.settings.persistence:
+                plant = _holder(model, w, k, g)
+            key = model.keys[k]
+            ranks = sum(1 for o in observed if len(o) == len(key) + 1 and o[:-1] == key) if was_seen else 0
+            for c in children[k][ranks:]:  # after the plant's own children on an observed organ
+                r = int(model.record[plant, c])
+                if r < 0 or not float(model.growth[r].max()) > 0:
+                    continue
+                turn = az[j] - float(model.parent_azimuth[r])
+                fixed.append(torch.zeros(G, dtype=torch.float64))
+                grow.append(model.log_length[r].exp() * model.growth[r])
+                shapes.append(rotate_about_up(model.shape[r], turn))
+                s.append(model.s[r].clone())
+                parent.append(j)
+                az.append(float(model.azimuth[r]) + turn)
+                source.append((plant, c, False))
+        j += 1
+    # observed organs grow on as their donor organs do; new organs take the rest of the drawn final total length
+    # (if observed growth alone passes it, that growth is scaled down and no new organ grows)
+    seen = [m for m in range(len(fixed)) if source[m][2]]
+    room = math.exp(log_final) - sum(float(fixed[m][-1]) for m in seen)
+    old = sum(float(grow[m][-1]) for m in seen)
+    new = sum(float(grow[m][-1]) for m in range(len(seen), len(fixed)))
+    if old <= room and new > NO_GROWTH:
+        b, a = 1.0, (room - old) / new
+    else:
+        b, a = (max(room, 0.0) / old if old > NO_GROWTH else 0.0), 0.0
+    sizes = {m: fixed[m] + (b if m < len(seen) else a) * grow[m] for m in range(len(fixed))}
+    for m in seen[1:]:  # an observed organ keeps its place (arc length) on a parent that grows at its tip
+        p = parent[m]
+        s[m] = s[m] * fixed[p][-1].clamp_min(NO_GROWTH) / sizes[p].clamp_min(fixed[p][-1].clamp_min(NO_GROWTH))
+    return assemble_frames(sizes, dict(enumerate(shapes)), dict(enumerate(s)), torch.tensor(parent),
+                           model.times().clone(), name)
