@@ -11,9 +11,9 @@ start growing ``--plastochron`` days after they are created (so organs appear ov
 ``--frames`` irregular days in the kind's span (:data:`KINDS`, jittered per plant; ``--same-days``: every plant on
 the same evenly spaced days, for comparisons across plants). Kind ``tree`` is a young woody tree from a parameter
 file of ours (``benchmarks/params/young_tree.xml``: a leader with 3-5 scaffolds, secondary shoots and spurs, no
-leaves, shoots bent by tropisms and random turns; its buds break ``ldelay`` days after they form). Each frame is the shoot (stems
-and leaf midribs; roots and the seed dropped; organs under 2 mm, just created, left out), a tree rooted at the stem
-base:
+leaves, shoots bent by tropisms and random turns; its buds break ``ldelay`` days after they form). Each frame is
+the shoot (stems and leaf midribs; roots and the seed dropped; organs under 2 mm, just created, left out), a tree
+rooted at the stem base:
 
 * written as SWC (``id type x y z radius parent``), millimetres, z up, the base at the origin (the lowest point
   but for drooping leaves); chains between branch points and tips are thinned to about ``--spacing`` mm;
@@ -64,7 +64,8 @@ def parameter_file(kind: str) -> Path:
     import plantbox as pb
 
     ours = PARAMS / KINDS[kind][0]
-    return ours if ours.is_file() else Path(pb.__file__).parent / "modelparameter" / "structural" / "plant" / KINDS[kind][0]
+    examples = Path(pb.__file__).parent / "modelparameter" / "structural" / "plant"
+    return ours if ours.is_file() else examples / KINDS[kind][0]
 
 
 def frame_days(rng: np.random.Generator, frames: int, first: float, last: float, jitter: bool = True) -> np.ndarray:
