@@ -17,10 +17,11 @@ rooted at the stem base:
 
 * written as SWC (``id type x y z radius parent``), millimetres, z up, the base at the origin (the lowest point
   but for drooping leaves); chains between branch points and tips are thinned to about ``--spacing`` mm;
-* ``type``: every node's organ, by botanical position (:func:`botanical_label`: ``1`` then two digits per level,
-  the organ's rank among its parent's stems and leaves in the order they grew along it; ``1010302`` = organ
-  1.3.2; the stem base takes the main shoot's label), so one organ keeps its label over a plant's frames and the
-  k-th organ on a parent has the same label in every plant of a kind;
+* ``type``: every node's organ, by botanical position (:func:`botanical_label`: ``1`` then per level two digits for
+  the node on the parent, in the order nodes grew along it, and one for the slot at that node, leaves 1-4 and
+  stems 5-9; ``1015032`` = the 2nd leaf at node 3 of the main shoot; the stem base takes the main shoot's label),
+  so one organ keeps its label over a plant's frames and the k-th leaf on a stem, or the shoot at node n, has the
+  same label in every plant of a kind;
 * ``times.json`` ``{file name: day}`` beside the frames; ``population.json`` records the settings.
 
 Layout (what ``torch4dtree.io.read_dataset`` and :mod:`torch4dtree.evaluate.morphometrics` read)::
@@ -106,32 +107,43 @@ def make_plant(kind: str, seed: int, jitter: float, plastochron: float) -> objec
     return plant
 
 
+def _position(organ: object) -> tuple[int, int]:
+    """``(node, slot)`` of an organ on its parent: the node is the rank (1-based) of its attachment point among the
+    parent's attachment points of shoot organs (in the order they grew along the parent); the slot is its place at
+    that node by kind: leaves 1-4, stems 5-9 (in creation order), so a leaf keeps its slot whether a shoot grows
+    beside it or not."""
+    parent = organ.getParent()
+    kids = [parent.getChild(i) for i in range(parent.getNumberOfChildren())]
+    kids = [k for k in kids if k.organType() in (STEM, LEAF)]
+    nodes = sorted({k.parentNI for k in kids})
+    same = sorted(k.getId() for k in kids if k.parentNI == organ.parentNI and k.organType() == organ.organType())
+    slot = same.index(organ.getId()) + (1 if organ.organType() == LEAF else 5)
+    if nodes.index(organ.parentNI) >= 99 or slot > (4 if organ.organType() == LEAF else 9):
+        raise RuntimeError(f"organ {organ.getId()}: node {nodes.index(organ.parentNI) + 1}, slot {slot} do not fit")
+    return nodes.index(organ.parentNI) + 1, slot
+
+
 def botanical_label(organ: object) -> int:
-    """The organ's botanical position as an integer: ``1`` followed by two digits per level, the organ's rank
-    (1-based) among its parent's shoot children (stems and leaves, in the order they were created along the
-    parent: attachment node, then creation), from the seed down. ``1010302`` is the 2nd organ on the 3rd organ on
-    the 1st shoot of the seed (e.g. a shoot's 2nd leaf); the same number names the same position in every frame
-    of a plant and in every plant of a kind. Never 99 (the package's spur label) nor -1."""
-    ranks = []
-    while organ.getParent().organType() in (STEM, LEAF):  # up to the seed
-        parent = organ.getParent()
-        kids = [parent.getChild(i) for i in range(parent.getNumberOfChildren())]
-        kids = sorted((k for k in kids if k.organType() in (STEM, LEAF)), key=lambda k: (k.parentNI, k.getId()))
-        ranks.append(1 + [k.getId() for k in kids].index(organ.getId()))
-        organ = parent
-    seed = organ.getParent()
-    kids = sorted((seed.getChild(i) for i in range(seed.getNumberOfChildren())
-                   if seed.getChild(i).organType() in (STEM, LEAF)), key=lambda k: (k.parentNI, k.getId()))
-    ranks.append(1 + [k.getId() for k in kids].index(organ.getId()))
-    if max(ranks) > 99 or len(ranks) > 7:
-        raise RuntimeError(f"botanical position {ranks[::-1]} does not fit two digits per level, 7 levels")
-    return int("1" + "".join(f"{r:02d}" for r in reversed(ranks)))
+    """The organ's botanical position as an integer: ``1`` followed by three digits per level from the seed down,
+    two for the node it grows from on its parent and one for its slot at that node (:func:`_position`: leaves
+    1-4, stems 5-9). ``1015032`` is the 2nd leaf at node 3 of the main shoot (node 1, slot 5 on the seed): the
+    same number names the same position in every frame of a plant and in every plant of a kind (the k-th leaf on
+    a stem, the shoot at node n). At most five levels (16 digits, exact in a float64); never 99 (the package's
+    spur label) nor -1."""
+    digits = []
+    while organ.organType() in (STEM, LEAF):
+        node, slot = _position(organ)
+        digits.append(f"{node:02d}{slot}")
+        organ = organ.getParent()
+    if len(digits) > 5:
+        raise RuntimeError(f"botanical position {digits[::-1]} is deeper than five levels")
+    return int("1" + "".join(reversed(digits)))
 
 
 def botanical_path(label: int) -> str:
-    """``1010302`` -> ``"1.3.2"`` (:func:`botanical_label` read back)."""
+    """``1015032`` -> ``"1.5/3.2"`` (``node.slot`` per level, :func:`botanical_label` read back)."""
     digits = str(label)[1:]
-    return ".".join(str(int(digits[i:i + 2])) for i in range(0, len(digits), 2))
+    return "/".join(f"{int(digits[i:i + 2])}.{digits[i + 2]}" for i in range(0, len(digits), 3))
 
 
 def shoot_skeleton(plant: object, spacing: float, min_organ: float = MIN_ORGAN
@@ -257,8 +269,9 @@ def main(argv: list[str] | None = None) -> None:
             "cplantbox": getattr(plantbox, "__version__", "2.1.1"), "seed": a.seed, "frames": a.frames,
             "jitter": a.jitter, "spacing_mm": a.spacing, "plastochron_days": a.plastochron, "same_days": a.same_days,
             "units": "mm, z up, base at the origin",
-            "type_column": "organ label: its botanical position, 1 then two digits per level (the organ's rank "
-                           "among its parent's shoot children, from the seed down): 1010302 = organ 1.3.2",
+            "type_column": "organ label: its botanical position, 1 then three digits per level from the seed down "
+                           "(two: the node on the parent in growth order; one: the slot there, leaves 1-4, stems 5-9): "
+                           "1015032 = the 2nd leaf at node 3 of the main shoot",
             "plants": records}
     (out / "population.json").write_text(json.dumps(meta, indent=1) + "\n")
 
