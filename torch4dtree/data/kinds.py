@@ -24,13 +24,13 @@ meet plants of realistic shape and size:
 * ``almond``: a young almond tree over two flushes of growth (slow at the first, middle and
   last scans), wood only. A trunk (~160 mm at the first scan, ~560 at the last) leaning
   2-12 degrees; 3-5 scaffolds (sylleptic shoots) from buds at different heights (70-400 mm) and
-  azimuths (2/5 phyllotaxis, 144 degrees), leaving at 30-60 degrees from vertical. Apical dominance
-  is weak: the upper scaffolds are the most vigorous and curve upwards, the top one outgrows
-  the trunk above it, and in half of the trees the leader itself arches 15-40 degrees away above
-  the top scaffold. On each scaffold, secondary shoots break from buds every ~45 mm once it has
-  grown past them, and spurs (short shoots, 6-25 mm: as long as skeletonisation spurs) appear on
-  the older wood of scaffolds and shoots: 4 layers. Nodes never move once laid down (wood).
-  100-135 nodes on the first day, 1200-2200 on the last; the tree spans 140-175 mm, then 500-650.
+  azimuths (2/5 phyllotaxis, 144 degrees), leaving at 30-60 degrees from vertical. Shoots grow
+  sympodially: they zig-zag by 15-35 degrees at nodes 4-9 mm apart, and the bud at a node breaks
+  (into a secondary shoot 0.2-1x as long as its scaffold, or a spur of 6-25 mm) at a random time
+  of one of the two flushes, so laterals appear between older ones. Apical dominance is weak: the
+  top scaffold turns upright and overtakes the leader, which in 7 trees of 10 bends 20-45 degrees
+  away above it. 4-5 layers; nodes never move once laid down (wood). 100-165 nodes on the first
+  day, 2,000-5,500 on the last; the tree spans 140-175 mm, then 500-700.
 
 In every frame of these plants (as in every frame of the Pheno4D skeletons, measured against
 the hand-corrected trees) the longest root-to-leaf path leaves the stem for a leaf or a shoot,
