@@ -29,7 +29,7 @@ meet plants of realistic shape and size:
   (into a secondary shoot 0.2-1x as long as its scaffold, or a spur of 6-25 mm) at a random time
   of one of the two flushes, so laterals appear between older ones. Apical dominance is weak: the
   top scaffold turns upright and overtakes the leader, which in 7 trees of 10 bends 20-45 degrees
-  away above it. 4-5 layers; nodes never move once laid down (wood). 100-165 nodes on the first
+  away above it. 4 layers of organs; nodes never move once laid down (wood). 100-165 nodes on the first
   day, 2,000-5,500 on the last; the tree spans 140-175 mm, then 500-700.
 
 In every frame of these plants (as in every frame of the Pheno4D skeletons, measured against
