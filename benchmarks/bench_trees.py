@@ -34,6 +34,7 @@ def main() -> None:
     p.add_argument("--skip-cycle", action="store_true")
     p.add_argument("--skip-synthetic", action="store_true")
     p.add_argument("--skip-all-pairs", action="store_true")
+    p.add_argument("--skip-hierarchy-speed", action="store_true")
     p.add_argument("--rows", action="store_true", help="print every pair")
     p.add_argument("--threads", type=int, default=1, help="torch and numba threads (1: CPU time = alone time)")
     a = p.parse_args()
@@ -53,6 +54,8 @@ def main() -> None:
               f"spatial registrations ({x['speedup_vs_paper']:.0f}x)")
     if not a.skip_synthetic:
         synthetic(a)
+    if not a.skip_hierarchy_speed:
+        hierarchy_speed(a)
 
 
 def timing(a: argparse.Namespace, kw: dict) -> None:
@@ -107,6 +110,33 @@ def synthetic(a: argparse.Namespace) -> None:
         frames = "  ".join(f"frame {f}: {100 * m:.0f}%" for f, m in v["per_frame"].items())
         print(f"{kind:8s} pairs {v['pairs']:3d}  accuracy mean {100 * v['accuracy_mean']:.1f}% "
               f"min {100 * v['accuracy_min']:.1f}%  median {v['median_s'] * 1e3:.0f} ms  ({frames})")
+
+
+def hierarchy_speed(a: argparse.Namespace, repeats: int = 5) -> None:
+    """CPU time of reading a ~1,000-node skeleton (two frames of a synthetic almond tree) by each hierarchy rule and
+    of registering the two trees with the defaults (best of ``repeats``)."""
+    import time
+
+    from torch4dtree.data import synthetic_plant
+    from torch4dtree.settings import HIERARCHIES
+    from torch4dtree.trees.registration import register_trees
+    from torch4dtree.trees.skeleton import skeleton_to_trees
+
+    plant = synthetic_plant("almond", 1, n_frames=10, T=8)
+    frames = [plant.skeletons[j] for j in (3, 4)]  # 815 and 1165 nodes
+    print(f"\nreading a {len(frames[0][0])}- and a {len(frames[1][0])}-node skeleton (T={a.T}) and registering "
+          f"them (register_trees defaults), CPU ms, best of {repeats}")
+    for rule in HIERARCHIES:
+        read, reg = [], []
+        for _ in range(repeats):
+            t0 = time.process_time()
+            trees = [skeleton_to_trees(xyz, parent, T=a.T, hierarchy=rule) for xyz, parent, _ in frames]
+            t1 = time.process_time()
+            register_trees(trees[1], trees[0])
+            read.append(t1 - t0)
+            reg.append(time.process_time() - t1)
+        print(f"{rule:13s} read {1e3 * min(read):7.1f}  register {1e3 * min(reg):7.1f}  "
+              f"branches {trees[0].num_branches.item()} / {trees[1].num_branches.item()}")
 
 
 if __name__ == "__main__":

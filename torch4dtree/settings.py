@@ -24,6 +24,7 @@ from typing import Any
 
 __all__ = [
     "CROSS_LP", "CROSS_ORDER_TOL", "CROSS_POSITIONS", "DEFAULT_NT", "DEFAULT_POSITIONS", "DEFAULT_T",
+    "DEFAULT_HIERARCHY",
     "DEFAULT_MODEL", "FALLBACK_ROTATION", "HIERARCHIES", "MODELS", "ORDER_TOL", "POSITIONS", "ROTATIONS",
     "TEMPORAL_BACKENDS", "TEMPORAL_NEIGHBOURHOOD", "TEMPORAL_REFINE", "TIME_WEIGHT", "WITHIN_LAMBDAS", "CrossSettings",
     "ModelSettings", "OrganSettings", "RegistrationSettings", "TemporalSettings", "check_at_least", "check_choice",
@@ -35,7 +36,9 @@ ROTATIONS = ("none", "vertical", "so3")
 # how two trees' matched children are compared: the parent's warp, arc length, or node rank (docs/method.md §3)
 POSITIONS = ("warped", "arclength", "rank")
 # skeleton -> branch hierarchy: which child continues a branch at a branch point (docs/method.md §2)
-HIERARCHIES = ("straightest", "heaviest", "longest")
+HIERARCHIES = ("straightest", "heaviest", "longest", "continuation")
+# straightness weighed with what each child carries: herbaceous plants and woody trees alike (docs/method.md §2)
+DEFAULT_HIERARCHY = "continuation"
 
 DEFAULT_T = 64  # points per branch
 DEFAULT_POSITIONS = "rank"  # pair registrations

@@ -119,7 +119,8 @@ def test_skeletons_are_pheno4d_like_graphs(kind):
             assert parent[0] == -1 and (parent[1:] >= 0).all() and (parent[1:] < np.arange(1, n)).all()
             assert np.array_equal(xyz[0], np.zeros(3)) and (xyz[:, 2] > -2.0).all()
             assert np.array_equal(np.round(xyz * 1e4) / 1e4, xyz)  # exact in SWC text
-            assert 28 <= n <= 2200, n
+            # a young tree carries more wood than the Pheno4D plants: laterals up to the leader's length
+            assert 28 <= n <= (6000 if kind == "almond" else 2200), n
             step = np.linalg.norm(xyz[1:] - xyz[parent[1:]], axis=1)
             assert step.min() > 0.02
             steps.append(step)

@@ -199,6 +199,50 @@ def identity_accuracy(kinds: tuple[str, ...] = ("tomato", "maize", "bean"), seed
     return rows
 
 
+def _pool(scores: list) -> dict:
+    """Micro-averaged ``{precision, recall, pairs}`` of :class:`~torch4dtree.data.IdentityScores`."""
+    matched = sum(s.n_matched for s in scores)
+    common = sum(s.n_common for s in scores)
+    return {"precision": sum(s.precision * s.n_matched for s in scores if s.n_matched) / max(matched, 1),
+            "recall": sum(s.recall * s.n_common for s in scores if s.n_common) / max(common, 1), "pairs": len(scores)}
+
+
+def library_identities(kinds: tuple[str, ...] = ("tomato", "maize", "bean", "almond"),
+                       seeds: tuple[int, ...] = (0, 1, 2), rules: tuple[str, ...] = HIERARCHIES,
+                       n_frames: int = 10, T: int = 32) -> list[dict]:
+    """Identity precision / recall between consecutive frames of realistic synthetic plants, as a user gets them
+    with the library's defaults: each frame read alone by the rule and ``register_trees(frame j, frame j + 1)``
+    (``"pairs"``), and the frames read as one sequence (joint hierarchy) and chained by ``register_sequence``
+    (``"sequence"``: the pairs of branches that share a slot in consecutive frames). Rows are ``{kind, rule, pairs:
+    {precision, recall, pairs}, sequence: {...}, seconds}``, micro-averaged over ``seeds`` plants."""
+    import time
+
+    from ..data import identity_scores, score_registration, synthetic_plant
+    from ..temporal.within import register_sequence
+    from ..trees.registration import register_trees
+
+    rows = []
+    for kind in kinds:
+        for rule in rules:
+            t0 = time.perf_counter()
+            alone, joint = [], []
+            for seed in seeds:
+                frames = synthetic_plant(kind, seed, n_frames=n_frames, T=T, dtype=torch.float64,
+                                         hierarchy_kwargs={"hierarchy": rule}, joint_hierarchy=False).sequence.frames
+                alone += [score_registration(register_trees(frames[j], frames[j + 1]), frames[j], frames[j + 1])
+                          for j in range(len(frames) - 1)]
+                seq = synthetic_plant(kind, seed, n_frames=n_frames, T=T, dtype=torch.float64,
+                                      hierarchy_kwargs={"hierarchy": rule}).sequence
+                identity = register_sequence(seq).identity.tolist()
+                labels = [seq.frames[j].label.tolist() for j in range(len(seq))]
+                for j in range(len(seq) - 1):
+                    matches = [(a, b) for a, b in zip(identity[j], identity[j + 1]) if a >= 0 and b >= 0]
+                    joint.append(identity_scores(matches, labels[j], labels[j + 1]))
+            rows.append({"kind": kind, "rule": rule, "pairs": _pool(alone), "sequence": _pool(joint),
+                         "seconds": time.perf_counter() - t0})
+    return rows
+
+
 if __name__ == "__main__":  # pragma: no cover
     import json
     import sys

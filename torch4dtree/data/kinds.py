@@ -24,13 +24,13 @@ meet plants of realistic shape and size:
 * ``almond``: a young almond tree over two flushes of growth (slow at the first, middle and
   last scans), wood only. A trunk (~160 mm at the first scan, ~560 at the last) leaning
   2-12 degrees; 3-5 scaffolds (sylleptic shoots) from buds at different heights (70-400 mm) and
-  azimuths (2/5 phyllotaxis, 144 degrees), leaving at 30-60 degrees from vertical. Apical dominance
-  is weak: the upper scaffolds are the most vigorous and curve upwards, the top one outgrows
-  the trunk above it, and in half of the trees the leader itself arches 15-40 degrees away above
-  the top scaffold. On each scaffold, secondary shoots break from buds every ~45 mm once it has
-  grown past them, and spurs (short shoots, 6-25 mm: as long as skeletonisation spurs) appear on
-  the older wood of scaffolds and shoots: 4 layers. Nodes never move once laid down (wood).
-  100-135 nodes on the first day, 1200-2200 on the last; the tree spans 140-175 mm, then 500-650.
+  azimuths (2/5 phyllotaxis, 144 degrees), leaving at 30-60 degrees from vertical. Shoots grow
+  sympodially: they zig-zag by 15-35 degrees at nodes 4-9 mm apart, and the bud at a node breaks
+  (into a secondary shoot 0.2-1x as long as its scaffold, or a spur of 6-25 mm) at a random time
+  of one of the two flushes, so laterals appear between older ones. Apical dominance is weak: the
+  top scaffold turns upright and overtakes the leader, which in 7 trees of 10 bends 20-45 degrees
+  away above it. 4 layers of organs; nodes never move once laid down (wood). 100-165 nodes on the first
+  day, 2,000-5,500 on the last; the tree spans 140-175 mm, then 500-700.
 
 In every frame of these plants (as in every frame of the Pheno4D skeletons, measured against
 the hand-corrected trees) the longest root-to-leaf path leaves the stem for a leaf or a shoot,
@@ -50,6 +50,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from .labels import SHOOT_OFFSET, STEM_LABEL
+from .organ_curves import zigzag_side
 from .plant_model import DEG, KindModel, Organ, PlantModel, wobble
 
 __all__ = ["KINDS", "KIND_MODELS", "STRUCTURES"]
@@ -290,70 +291,93 @@ def _bean_structure(rng: np.random.Generator) -> PlantModel:
     return PlantModel(KIND_MODELS["bean"], size, lean, wob, organs)
 
 
+ALMOND_FLUSHES = ((0.08, 0.42), (0.55, 0.9))  # biological times of the two flushes in which buds break
+ALMOND_MAX_LATERALS = 48  # lateral labels 51..98 on one shoot
+
+
+def _almond_clock(axes: Sequence[Organ], b: float) -> float:
+    """The clock (nominal length, mm) at biological time ``b`` of the last of a chain of shoots ``axes`` (the trunk's
+    scaffold first), each growing on its parent's clock as :func:`~.plant_model.organ_state` grows them."""
+    c = _almond_develop(b)
+    for o in axes:
+        c = o.max_len * -math.expm1(-(c - o.onset) / o.width) if c > o.onset else 0.0
+    return c
+
+
+def _almond_buds(rng: np.random.Generator, axes: Sequence[Organ], internode: float, p_shoot: float,
+                 p_spur: float) -> list[tuple[int, float, str]]:
+    """The buds that break on the last shoot of ``axes`` before the last scan: ``(node k, onset, "shoot" | "spur")``,
+    one bud per node ``k * internode``, breaking at a random time of one of the two flushes (or once the node is
+    laid down and 8 mm overgrown, if later); ``onset`` is in the shoot's clock."""
+    end = _almond_clock(axes, 1.0)
+    out = []
+    for k in range(1, int(end / internode) + 1):
+        u = rng.uniform()
+        what = "shoot" if u < p_shoot else "spur" if u < p_shoot + p_spur else ""
+        flush = ALMOND_FLUSHES[int(rng.integers(0, 2))]
+        onset = max(k * internode + 8.0, _almond_clock(axes, rng.uniform(*flush)))
+        if what and onset < end - 2.0:
+            out.append((k, onset, what))
+    return out[:ALMOND_MAX_LATERALS]
+
+
 def _almond_structure(rng: np.random.Generator) -> PlantModel:
-    # A young almond tree over two flushes, wood only. Apical dominance is weak: scaffolds near the top are the
-    # most vigorous and outgrow the leader above them, which in about half of the trees arches away.
+    # A young almond tree over two flushes, wood only: sympodial shoots that zig-zag at nodes a few mm apart, buds
+    # breaking at random over both flushes into laterals as long as the leader, and a weak leader that bends and is
+    # overtaken by the upright top scaffold.
     size, lean, wob, organs, phi0 = _stem(rng, (0.88, 1.12), (2.0, 12.0), 0.05)  # trunks lean (wind, no stake)
+    internode = rng.uniform(4.0, 9.0)  # nominal mm between the nodes of a shoot
     n_scaffolds = int(rng.integers(3, 6))
     lo, hi = 70.0, 400.0  # trunk heights (nominal mm) of the scaffolds' buds, one per slot at random within it
     nodes = lo + (hi - lo) * (np.arange(n_scaffolds) + rng.uniform(0.15, 0.85, n_scaffolds)) / n_scaffolds
-    end_clock = _almond_develop(1.0)
     for k, F in enumerate(nodes.tolist(), 1):
         rel = (F - lo) / (hi - lo)  # 0 at the bottom, 1 at the top: acrotony, the upper ones grow most
-        theta = rng.uniform(30.0, 60.0) * DEG
+        top = k == n_scaffolds
+        theta = rng.uniform(25.0, 40.0) * DEG if top else rng.uniform(30.0, 60.0) * DEG
         scaffold = len(organs)
-        onset = F + 30.0 + rng.uniform(-5, 5)
         organs.append(Organ(
-            label=SHOOT_OFFSET + k, parent=0, role="shoot", onset=onset, node=F, depth=30.0,
-            max_len=(230.0 + 170.0 * rel) * rng.normal(1, 0.12), width=160.0 * rng.normal(1, 0.1),
-            theta_young=theta - 12 * DEG, theta_mature=theta,
+            label=SHOOT_OFFSET + k, parent=0, role="shoot", onset=F + 30.0 + rng.uniform(-5, 5), node=F, depth=30.0,
+            max_len=(230.0 + 170.0 * rel) * rng.normal(1, 0.12) * (1.3 if top else 1.0),
+            width=160.0 * rng.normal(1, 0.1), theta_young=theta - 12 * DEG, theta_mature=theta,
             phi=phi0 + (k - 1) * 144.0 * DEG + rng.normal(0, 20 * DEG),  # 2/5 phyllotaxis
-            droop=(rng.uniform(-30, -10) if rel > 0.5 else rng.uniform(-10, 15)) * DEG, droop_max=35 * DEG,
+            # the top scaffold turns upright and takes over from the leader
+            droop=(rng.uniform(-40, -25) if top else rng.uniform(-30, -10) if rel > 0.5 else rng.uniform(-10, 15))
+            * DEG, droop_max=(40 if top else 35) * DEG,
             wobble_theta=wobble(rng, 0.08), wobble_phi=wobble(rng, 0.10),
+            zigzag=rng.uniform(15.0, 35.0) * DEG, internode=internode,
         ))
         sc = organs[scaffold]
-        sc_end = sc.max_len * -math.expm1(-(end_clock - onset) / sc.width)  # its clock at the last scan
-        # laterals on the scaffold: secondary shoots from buds every ~45 mm that break once the scaffold has
-        # grown 40 mm beyond them, and spurs (short shoots) on the older wood; numbered from the scaffold's base
-        laterals: list[tuple[float, str]] = []
-        F2 = 30.0 + rng.uniform(-10, 10)
-        while F2 + 40.0 < sc_end:
-            if rng.uniform() < 0.5:
-                laterals.append((F2, "shoot"))
-            F2 += 45.0 + rng.uniform(-10, 10)
-        for _ in range(int(rng.poisson(3.0))):
-            laterals.append((rng.uniform(15.0, max(0.7 * sc_end, 20.0)), "spur"))
-        laterals.sort()
-        side = 1.0 if rng.uniform() < 0.5 else -1.0
-        for j, (F2, what) in enumerate(laterals[:48], 1):
+        # laterals on the scaffold, numbered from its base: secondary shoots up to as long as the scaffold, spurs
+        for j, (node, onset, what) in enumerate(_almond_buds(rng, [sc], internode, 0.12, 0.1), 1):
+            label = sc.label * 100 + SHOOT_OFFSET + j
             if what == "spur":
-                organs.append(_spur(rng, sc.label * 100 + SHOOT_OFFSET + j, scaffold, F2, delay=150.0))
+                organs.append(_spur(rng, label, scaffold, node * internode, onset))
                 continue
-            side = -side
             shoot = len(organs)
             organs.append(Organ(
-                label=sc.label * 100 + SHOOT_OFFSET + j, parent=scaffold, role="shoot", onset=F2 + 40.0,
-                node=F2, depth=35.0, max_len=rng.uniform(60.0, 140.0), width=90.0 * rng.normal(1, 0.1),
-                theta_young=rng.uniform(30, 45) * DEG, theta_mature=rng.uniform(45, 70) * DEG,
-                phi=sc.phi + side * rng.uniform(40, 80) * DEG, droop=rng.uniform(-15, 15) * DEG,
+                label=label, parent=scaffold, role="shoot", onset=onset, node=node * internode, depth=35.0,
+                max_len=sc.max_len * rng.uniform(0.2, 1.0), width=90.0 * rng.normal(1, 0.1),
+                theta_young=rng.uniform(30, 45) * DEG, theta_mature=rng.uniform(40, 70) * DEG,
+                # it leaves on the side the scaffold turns away from above that node
+                phi=sc.phi + float(zigzag_side(node)) * rng.uniform(40, 80) * DEG, droop=rng.uniform(-25, 15) * DEG,
                 droop_max=25 * DEG, wobble_theta=wobble(rng, 0.08), wobble_phi=wobble(rng, 0.10),
+                zigzag=rng.uniform(15.0, 35.0) * DEG, internode=internode,
             ))
             sec = organs[shoot]
-            spurs = np.sort(rng.uniform(10.0, max(0.6 * sec.max_len, 15.0), int(rng.integers(0, 3))))
-            for m, F3 in enumerate(spurs.tolist(), 1):
-                organs.append(_spur(rng, sec.label * 100 + SHOOT_OFFSET + m, shoot, F3, delay=60.0))
-    if rng.uniform() < 0.5:  # a weak leader arching away above the top scaffold
+            for m, (node2, onset2, _) in enumerate(_almond_buds(rng, [sc, sec], internode, 0.0, 0.08), 1):
+                organs.append(_spur(rng, sec.label * 100 + SHOOT_OFFSET + m, shoot, node2 * internode, onset2))
+    if rng.uniform() < 0.7:  # a weak leader arching away above the top scaffold
         bend_from = float(nodes[-1]) + rng.uniform(0.0, 40.0)
         return PlantModel(KIND_MODELS["almond"], size, lean, wob, organs, bend_from=bend_from,
-                           leader_bend=_horizontal(rng, math.tan(rng.uniform(15.0, 40.0) * DEG)),
+                           leader_bend=_horizontal(rng, math.tan(rng.uniform(20.0, 45.0) * DEG)),
                            bend_ramp=rng.uniform(60.0, 120.0))
     return PlantModel(KIND_MODELS["almond"], size, lean, wob, organs)
 
 
-def _spur(rng: np.random.Generator, label: int, parent: int, node: float, delay: float) -> Organ:
-    """A spur (a short shoot on older wood) at ``node``: it breaks once its axis has grown ~``delay`` mm past it."""
+def _spur(rng: np.random.Generator, label: int, parent: int, node: float, onset: float) -> Organ:
+    """A spur (a short shoot on older wood) at ``node`` that starts growing at its parent's clock ``onset``."""
     return Organ(
-        label=label, parent=parent, role="shoot", onset=node + delay + rng.uniform(-20, 20), node=node, depth=40.0,
+        label=label, parent=parent, role="shoot", onset=onset, node=node, depth=40.0,
         max_len=rng.uniform(6.0, 25.0), width=20.0, theta_young=rng.uniform(50, 100) * DEG,
         theta_mature=rng.uniform(50, 100) * DEG, phi=rng.uniform(0, 2 * math.pi), droop=0.0,
         wobble_theta=wobble(rng, 0.03), wobble_phi=wobble(rng, 0.03),

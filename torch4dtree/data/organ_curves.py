@@ -13,10 +13,11 @@ import numpy as np
 
 from .plant_model import Organ, PlantModel, organ_state
 
-__all__ = ["at_arc", "organ_curves"]
+__all__ = ["at_arc", "organ_curves", "zigzag_nodes", "zigzag_side"]
 
 LOST_DIRECTION = 1e-6  # a vertical parent has no horizontal direction: any will do
 LENGTH_FLOOR = 1e-9  # divisor floor of an organ length (a zero-length organ gets the largest bend)
+MAX_SEGMENTS = 2000  # segments of a sympodial shoot's polyline (~1 mm each)
 TANGENT_FLOOR = 1e-12  # divisor floor of a segment length (a repeated point gives a zero tangent)
 
 
@@ -80,13 +81,15 @@ def _stem_points(plant: PlantModel, L: float, jitter: np.ndarray, step: float = 
 
 def _organ_points(
     o: Organ, start: np.ndarray, base_dir: np.ndarray, length: float, maturity: float, droop_pow: float,
-    jitter: np.ndarray,
+    jitter: np.ndarray, size: float = 1.0, drift: float = 0.0,
 ) -> np.ndarray:
-    """A lateral organ: start direction (spherical angles), droop growing with length, smooth wobble.
+    """A lateral organ: start direction (spherical angles), droop growing with length, smooth wobble, and a
+    sympodial shoot's turns at its nodes (``size``: the plant's size factor, ``drift``: the kind's node drift).
 
     ``jitter (2, 3, 2)``: this frame's noise on the inclination and azimuth (see :func:`_frame_noise`).
     """
-    n = int(np.clip(math.ceil(length / 1.0), 8, 200))
+    # ~1 mm segments (a sympodial shoot's internodes need them all), at most 200 on a smooth organ
+    n = int(np.clip(math.ceil(length / 1.0), 8, MAX_SEGMENTS if o.zigzag > 0 else 200))
     u = (np.arange(n) + 0.5) / n
     theta0 = math.acos(min(max(float(base_dir[2]), -1.0), 1.0))
     phi0 = math.atan2(float(base_dir[1]), float(base_dir[0]))
@@ -94,7 +97,38 @@ def _organ_points(
     w = _eval_wobbles(np.concatenate([o.wobble_theta[None], o.wobble_phi[None], jitter]), u)
     theta = np.clip(theta0 + bend * u**droop_pow + w[0] + w[2], 0.02, math.pi - 0.2)
     phi = phi0 + w[1] + w[3]
-    return _polyline(start, _directions(theta, phi), length)
+    dirs = _directions(theta, phi)
+    if o.zigzag > 0 and o.internode > 0:
+        dirs = _zigzag(dirs, u * length, zigzag_nodes(o, length, size, drift), o.zigzag)
+    return _polyline(start, dirs, length)
+
+
+def zigzag_nodes(o: Organ, length: float, size: float, drift: float) -> np.ndarray:
+    """Arc lengths (mm) of the nodes of a sympodial shoot of ``length`` mm: nominal ``k * internode`` (k >= 1),
+    lifted by the stretch of the internodes below them as the shoot grows (``drift``, as :func:`organ_state` places
+    the laterals there)."""
+    if o.internode <= 0:
+        return np.zeros(0)
+    clock = length / size  # a shoot's clock is its nominal length
+    nominal = o.internode * np.arange(1, int(clock / o.internode) + 1)
+    return size * (nominal + drift * (clock - nominal))
+
+
+def zigzag_side(k: int | np.ndarray) -> float | np.ndarray:
+    """The side (+1 / -1: towards a smaller / larger azimuth) a sympodial axis turns to above its ``k``-th node."""
+    return 1.0 - 2.0 * (k % 2)
+
+
+def _zigzag(dirs: np.ndarray, arc: np.ndarray, nodes: np.ndarray, angle: float) -> np.ndarray:
+    """Turn unit directions ``(n, 3)`` at arc lengths ``arc (n,)`` alternately sideways at every node ``(k,)``: by
+    ``+-angle / 2`` about the shoot's course, so consecutive internodes meet at ``angle``."""
+    k = np.searchsorted(nodes, arc, side="right")  # nodes passed
+    side = zigzag_side(k)
+    h = np.stack([dirs[:, 1], -dirs[:, 0], np.zeros(len(dirs))], -1)  # dirs x up: azimuth - 90 degrees
+    norm = np.linalg.norm(h, axis=-1, keepdims=True)
+    h = np.where(norm > LOST_DIRECTION, h / np.maximum(norm, LOST_DIRECTION), np.array([1.0, 0.0, 0.0]))
+    turned = dirs + (side * math.tan(angle / 2))[:, None] * h
+    return turned / np.linalg.norm(turned, axis=-1, keepdims=True)
 
 
 def _lateral_direction(tangent: np.ndarray, spread: float, side: float) -> np.ndarray:
@@ -143,5 +177,6 @@ def organ_curves(
             maturity = min(length[i] / (plant.size * o.max_len), 1.0)
             theta = o.theta_young + (o.theta_mature - o.theta_young) * maturity
             base_dir = _directions(np.array(theta), np.array(o.phi))
-        curves[i] = _organ_points(o, start, base_dir, float(length[i]), maturity, plant.kind.droop_pow, bends[i])
+        curves[i] = _organ_points(o, start, base_dir, float(length[i]), maturity, plant.kind.droop_pow, bends[i],
+                                  plant.size, plant.kind.node_drift)
     return curves, length, pos

@@ -72,6 +72,10 @@ class Organ:
     droop_max: float = 1.5  # cap on the size of that bending (rad)
     wobble_theta: np.ndarray = field(default_factory=lambda: np.zeros((3, 2)))  # (amplitude, phase) x 3
     wobble_phi: np.ndarray = field(default_factory=lambda: np.zeros((3, 2)))
+    # shoot: sympodial growth, the axis turning alternately left and right by this angle (rad) at each of its nodes,
+    # `internode` nominal mm apart (0: a smooth axis); a lateral at node k leaves on the side the axis turns from
+    zigzag: float = 0.0
+    internode: float = 0.0
 
 
 def wobble(rng: np.random.Generator, amplitude: float) -> np.ndarray:

@@ -7,6 +7,11 @@ into the child the rule picks; every other child starts a side branch, decompose
 * ``"longest"``: the child with the longest path down to a leaf (the paper's rule). Unstable under
   growth: the main branch runs up the stem and into whichever organ is longest at the top.
 * ``"heaviest"``: the child whose subtree has the largest total length.
+* ``"continuation"`` (default): ``"straightest"``'s turn, less :data:`CARRY_RADIANS` times the log of what the
+  child carries (its subtree's length off its own longest path, plus one window) relative to the candidate that
+  carries most. A shoot that carries laterals goes on through a fork where a bare leader or twig turns a little
+  less (a woody tree's overtaken leader, a sympodial shoot's zig-zag); a leaf or a young maize leaf, carrying
+  little, never outweighs the stem's straightness.
 * ``"straightest"``: the child whose first stretch (a window of arc length) turns least from the
   branch's incoming direction, among children whose subtree is not negligible (spurs); the heaviest
   where there is no incoming direction (at the root). Stems, rachises and shoots run straight through
@@ -28,7 +33,7 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 
-from ..settings import DEFAULT_T, HIERARCHIES, check_choice
+from ..settings import DEFAULT_HIERARCHY, DEFAULT_T, HIERARCHIES, check_choice
 from .structures import TreeError, Trees
 
 
@@ -130,6 +135,11 @@ WINDOW_ORGAN_SHARE = 0.5  # the window at a branch point: a share of the side or
 # children whose subtree is shorter than this many windows are spurs, not candidates; a longer threshold would drop
 # the short stem tip above the youngest leaf (a true continuation) where the window is long
 SPUR_WINDOWS = 0.1
+# "continuation": the turn (rad) a child adds for carrying e times less than the candidate that carries most (what a
+# child carries: its subtree's length off its own longest path, plus one window); 0.1-0.25 keep the herbaceous
+# identities of "straightest" and fix the woody ones, 0.5 loses tomato and bean leaves (docs/experiments.md)
+CARRY_RADIANS = 0.15
+DIRECTED = ("straightest", "continuation")  # the rules that measure directions
 # divisor floor of a product of vector norms: a zero-length direction gives an angle instead of nan
 MIN_NORM = 1e-300
 
@@ -220,7 +230,7 @@ def _angle(u: np.ndarray, v: np.ndarray) -> float:
 
 
 def continuation_children(xyz: np.ndarray, parent: np.ndarray, order: np.ndarray, children: list[list[int]],
-                          edge: np.ndarray, hierarchy: str = "straightest", where: str = "skeleton",
+                          edge: np.ndarray, hierarchy: str = DEFAULT_HIERARCHY, where: str = "skeleton",
                           window: float | None = None) -> np.ndarray:
     """``best (n,)``: the child that continues the branch through each node (``-1`` at leaves)."""
     check_choice(f"{where}: hierarchy", hierarchy, HIERARCHIES)
@@ -231,7 +241,7 @@ def continuation_children(xyz: np.ndarray, parent: np.ndarray, order: np.ndarray
     down = [length[c] + weight[c] for c in range(n)]  # what hangs from a node's parent through that node
     best = np.full(n, -1)
     floor = 0.0
-    if hierarchy == "straightest":
+    if hierarchy in DIRECTED:
         if window is not None and not window > 0:
             raise TreeError(f"{where}: the direction window must be positive, got {window}")
         floor = default_window(xyz, parent, edge, children) if window is None else float(window)
@@ -245,7 +255,7 @@ def continuation_children(xyz: np.ndarray, parent: np.ndarray, order: np.ndarray
             best[v] = max(kids, key=lambda c: (path[c], -c))
             continue
         heaviest = max(kids, key=lambda c: (down[c], -c))
-        if hierarchy != "straightest" or window is not None:
+        if hierarchy not in DIRECTED or window is not None:
             w = floor
         else:
             w = organ_window(np.array([path[c] for c in kids]), floor)
@@ -257,11 +267,18 @@ def continuation_children(xyz: np.ndarray, parent: np.ndarray, order: np.ndarray
         candidates = [c for c in kids if down[c] >= SPUR_WINDOWS * w] or [heaviest]
         turn = {c: _angle(incoming, _point_down(xyz, parent, children, edge, c, w, incoming) - xyz[v])
                 for c in candidates}
-        best[v] = min(candidates, key=lambda c: (turn[c], -down[c], c))
+        if hierarchy == "continuation":
+            # what each child carries besides its own longest path (side organs), a window counting as nothing
+            carried = {c: down[c] - path[c] + w for c in candidates}
+            top = max(carried.values())
+            score = {c: turn[c] - CARRY_RADIANS * math.log(carried[c] / top) for c in candidates}
+            best[v] = min(candidates, key=lambda c: (score[c], -down[c], c))
+        else:
+            best[v] = min(candidates, key=lambda c: (turn[c], -down[c], c))
     return best
 
 
-def resolve_branch_points(xyz: np.ndarray, parent: np.ndarray, hierarchy: str = "straightest",
+def resolve_branch_points(xyz: np.ndarray, parent: np.ndarray, hierarchy: str = DEFAULT_HIERARCHY,
                           where: str = "skeleton", ids: np.ndarray | None = None, window: float | None = None
                           ) -> tuple[np.ndarray, list[list[int]], np.ndarray, np.ndarray]:
     """A validated skeleton's ``(order, children, edge, best)``: breadth-first node order, children lists, the
@@ -291,7 +308,7 @@ def skeleton_to_branches(
     main_path: Sequence[int] | None = None,
     where: str = "skeleton",
     ids: np.ndarray | None = None,
-    hierarchy: str = "straightest",
+    hierarchy: str = DEFAULT_HIERARCHY,
     window: float | None = None,
 ) -> tuple[list[np.ndarray], list[int], list[list[int]]]:
     """Decompose a skeleton into branches by a hierarchy rule (module docstring).
@@ -304,8 +321,9 @@ def skeleton_to_branches(
         main_path: node indices of the main branch, starting at the root (default: by the rule).
         where: a name for error messages.
         ids: node ids for error messages.
-        hierarchy: ``"straightest"`` (default), ``"heaviest"`` or ``"longest"`` (module docstring).
-        window: arc length over which ``"straightest"`` measures directions at every branch point
+        hierarchy: ``"continuation"`` (default), ``"straightest"``, ``"heaviest"`` or ``"longest"`` (module
+            docstring).
+        window: arc length over which ``"straightest"`` and ``"continuation"`` measure directions at every branch point
             (default: per branch point, :func:`organ_window` with the floor :func:`default_window`).
 
     Returns:
@@ -365,7 +383,7 @@ def skeleton_to_trees(
     where: str = "skeleton",
     ids: np.ndarray | None = None,
     dtype: torch.dtype = torch.float32,
-    hierarchy: str = "straightest",
+    hierarchy: str = DEFAULT_HIERARCHY,
     window: float | None = None,
 ) -> Trees:
     """One skeleton as a single-tree :class:`Trees` (see :func:`skeleton_to_branches`).
