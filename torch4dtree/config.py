@@ -16,6 +16,7 @@ from .settings import (
     CROSS_LP,
     CROSS_ORDER_TOL,
     CROSS_POSITIONS,
+    DEFAULT_HIERARCHY,
     DEFAULT_MODEL,
     DEFAULT_NT,
     DEFAULT_POSITIONS,
@@ -67,7 +68,7 @@ class Config:
     max_layers: int | None = None
     min_branch_length: float = 0.0
     repair: bool = False
-    hierarchy: str = "straightest"  # skeleton -> branches rule (torch4dtree.trees.skeleton)
+    hierarchy: str = DEFAULT_HIERARCHY  # skeleton -> branches rule (torch4dtree.trees.skeleton)
     joint_hierarchy: bool = True  # SWC sequences: main branches that agree over time (torch4dtree.trees.growth)
     rotation: str = "none"
     lambdas: tuple[float, float, float] = (1.0, 1.0, 1.0)  # (lm, ls, lp)

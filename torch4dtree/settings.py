@@ -37,8 +37,9 @@ ROTATIONS = ("none", "vertical", "so3")
 POSITIONS = ("warped", "arclength", "rank")
 # skeleton -> branch hierarchy: which child continues a branch at a branch point (docs/method.md §2)
 HIERARCHIES = ("straightest", "heaviest", "longest", "continuation")
-# straightness weighed with what each child carries: herbaceous plants and woody trees alike (docs/method.md §2)
-DEFAULT_HIERARCHY = "continuation"
+# the default rule; "continuation" (straightness weighed with what each child carries) is an option whose gain on
+# woody trees is not yet clear across plant sets (docs/experiments.md)
+DEFAULT_HIERARCHY = "straightest"
 
 DEFAULT_T = 64  # points per branch
 DEFAULT_POSITIONS = "rank"  # pair registrations

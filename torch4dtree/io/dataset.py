@@ -30,7 +30,7 @@ from pathlib import Path
 import torch
 
 from ..parallel import run_tasks
-from ..settings import DEFAULT_T, HIERARCHIES, check_choice
+from ..settings import DEFAULT_HIERARCHY, DEFAULT_T, HIERARCHIES, check_choice
 from ..trees.structures import TreeError, Trees, TreeSequence
 from .mat import read_mat_tree
 from .swc import read_swc, read_swc_skeleton
@@ -74,7 +74,7 @@ class LoadOptions:
     repair: bool = False
     labels_from_type: bool = False
     dtype: torch.dtype = torch.float32
-    hierarchy: str = "straightest"
+    hierarchy: str = DEFAULT_HIERARCHY
     joint_hierarchy: bool = True
 
     def __post_init__(self) -> None:

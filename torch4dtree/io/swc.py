@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..settings import DEFAULT_T
+from ..settings import DEFAULT_HIERARCHY, DEFAULT_T
 from ..trees.skeleton import repair_skeleton, skeleton_to_trees, trees_to_skeleton, validate_skeleton
 from ..trees.structures import TreeError, Trees
 from .files import write_text_safely
@@ -112,7 +112,7 @@ def read_swc(
     labels_from_type: bool = False,
     repair: bool = False,
     main_path: Sequence[int] | None = None,
-    hierarchy: str = "straightest",
+    hierarchy: str = DEFAULT_HIERARCHY,
 ) -> Trees:
     """Read an SWC file as a single-tree :class:`Trees` (branch hierarchy by the ``hierarchy`` rule, docs/method.md §2;
     see :mod:`torch4dtree.trees.skeleton`).

@@ -20,7 +20,7 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 
-from ..settings import DEFAULT_T
+from ..settings import DEFAULT_HIERARCHY, DEFAULT_T
 from .registration import effective_lambdas, register_to_reference
 from .skeleton import follow_continuations, resolve_branch_points, skeleton_to_trees
 from .structures import Trees
@@ -37,7 +37,7 @@ SCREEN_LAYERS = 2
 MARGIN = 0.9
 
 
-def alternative_main_paths(xyz: np.ndarray, parent: np.ndarray, hierarchy: str = "straightest",
+def alternative_main_paths(xyz: np.ndarray, parent: np.ndarray, hierarchy: str = DEFAULT_HIERARCHY,
                            window: float | None = None, top: int = TOP_BRANCH_POINTS,
                            where: str = "skeleton", ids: np.ndarray | None = None) -> list[list[int]]:
     """The rule's main path (first) and its alternatives, as node indices from the root.
@@ -71,7 +71,7 @@ def alternative_main_paths(xyz: np.ndarray, parent: np.ndarray, hierarchy: str =
 
 
 def consistent_frames(skeletons: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray | None]], T: int = DEFAULT_T,
-                      hierarchy: str = "straightest", window: float | None = None,
+                      hierarchy: str = DEFAULT_HIERARCHY, window: float | None = None,
                       lambdas: Sequence[float] = (1.0, 1.0, 9.0), rotation: str = "none",
                       top: int = TOP_BRANCH_POINTS, screen_T: int = SCREEN_T, margin: float = MARGIN,
                       names: Sequence[str] | None = None, ids: Sequence[np.ndarray] | None = None,

@@ -7,12 +7,12 @@ into the child the rule picks; every other child starts a side branch, decompose
 * ``"longest"``: the child with the longest path down to a leaf (the paper's rule). Unstable under
   growth: the main branch runs up the stem and into whichever organ is longest at the top.
 * ``"heaviest"``: the child whose subtree has the largest total length.
-* ``"continuation"`` (default): ``"straightest"``'s turn, less :data:`CARRY_RADIANS` times the log of what the
+* ``"continuation"``: ``"straightest"``'s turn, less :data:`CARRY_RADIANS` times the log of what the
   child carries (its subtree's length off its own longest path, plus one window) relative to the candidate that
   carries most. A shoot that carries laterals goes on through a fork where a bare leader or twig turns a little
   less (a woody tree's overtaken leader, a sympodial shoot's zig-zag); a leaf or a young maize leaf, carrying
   little, never outweighs the stem's straightness.
-* ``"straightest"``: the child whose first stretch (a window of arc length) turns least from the
+* ``"straightest"`` (default): the child whose first stretch (a window of arc length) turns least from the
   branch's incoming direction, among children whose subtree is not negligible (spurs); the heaviest
   where there is no incoming direction (at the root). Stems, rachises and shoots run straight through
   their nodes while leaves and leaflets leave at an angle, whichever is longer on that day. The window at a
@@ -321,7 +321,7 @@ def skeleton_to_branches(
         main_path: node indices of the main branch, starting at the root (default: by the rule).
         where: a name for error messages.
         ids: node ids for error messages.
-        hierarchy: ``"continuation"`` (default), ``"straightest"``, ``"heaviest"`` or ``"longest"`` (module
+        hierarchy: ``"straightest"`` (default), ``"continuation"``, ``"heaviest"`` or ``"longest"`` (module
             docstring).
         window: arc length over which ``"straightest"`` and ``"continuation"`` measure directions at every branch point
             (default: per branch point, :func:`organ_window` with the floor :func:`default_window`).
