@@ -32,7 +32,7 @@ def _causes(matches: list[tuple[int, int]], lm: list[int], lr: list[int], comp_m
 def test_swap_of_two_whole_organs_is_a_swap() -> None:
     e = _causes([(0, 0), (1, 2), (2, 1)], [1, 3, 4], [1, 3, 4])
     assert e.pairs == [(1, 2, "swap"), (2, 1, "swap")]
-    assert e.counts == {"spur": 0, "apex_chain": 0, "split": 0, "swap": 2, "other": 0}
+    assert e.counts == {"inherited": 0, "spur": 0, "apex_chain": 0, "split": 0, "swap": 2, "other": 0}
     assert (e.mismatched, e.unmatched) == (2, 0)
 
 
@@ -66,6 +66,18 @@ def test_branch_running_into_a_younger_organ_is_an_apex_chain() -> None:
     lm, lr = [7, 2], [1, 2]
     e = _causes([(0, 0), (1, 1)], lm, lr, comp_m=[{1: 0.4, 7: 0.6}, {2: 1.0}])
     assert e.pairs == [(0, 0, "apex_chain")]
+
+
+def test_children_of_a_wrong_pair_are_inherited() -> None:
+    # the swapped organs 3 and 4 carry organs 5 and 6, whose branches follow their parents
+    lm, lr = [1, 3, 4, 5, 6], [1, 3, 4, 5, 6]
+    parents = [-1, 0, 0, 1, 2]
+    e = error_causes([(0, 0), (1, 2), (2, 1), (3, 4), (4, 3)], lm, lr, _pure(lm), _pure(lr), [100.0] * 5,
+                     [100.0] * 5, parents, parents)
+    assert e.pairs == [(1, 2, "swap"), (2, 1, "swap"), (3, 4, "inherited"), (4, 3, "inherited")]
+    # without the parents the children's pairs are swaps of their own
+    e = _causes([(0, 0), (1, 2), (2, 1), (3, 4), (4, 3)], lm, lr)
+    assert [c for *_, c in e.pairs] == ["swap"] * 4
 
 
 def test_ignored_labels_and_order_of_causes() -> None:

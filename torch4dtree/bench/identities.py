@@ -9,6 +9,8 @@ length lying on each organ of the skeleton it was read from (:func:`branch_compo
 Every wrong pair ``(i, j)`` (moving branch ``i`` of organ ``a``, reference branch ``j`` of organ ``b != a``, both
 valid) gets the first of these causes that applies (:data:`CAUSES`):
 
+* ``inherited``: the two branches' parent branches are matched to each other and hold different organs: the error
+  follows from the parents' one (a branch whose continuation changed takes its children along), counted there.
 * ``spur``: one of the two branches is shorter than :data:`SPUR_SHARE` of its tree's main branch: a stub (a young
   organ, or a piece the hierarchy cut off an organ) matched where its organ is not.
 * ``apex_chain``: the two branches share an organ but not their majority one: branch ``i`` holds at least
@@ -41,7 +43,7 @@ from ..trees.structures import Trees
 __all__ = ["CAUSES", "SHARE_MIN", "SPUR_SHARE", "ErrorCauses", "branch_composition", "branch_lengths",
            "error_causes", "score_pair", "sequence_matches", "sum_causes"]
 
-CAUSES = ("spur", "apex_chain", "split", "swap", "other")
+CAUSES = ("inherited", "spur", "apex_chain", "split", "swap", "other")
 SPUR_SHARE = 0.05  # a branch shorter than this share of its tree's main branch is a stub
 SHARE_MIN = 0.1  # a share of a branch's (or an organ's) length below this is ignored: the branch point's neighbourhood
 
@@ -63,12 +65,23 @@ class ErrorCauses:
     pairs: list[tuple[int, int, str]] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, int]:
-        """Plain counts (JSON): the causes, ``mismatched``, ``unmatched``."""
+        """Plain counts (JSON): the causes, ``mismatched``, ``unmatched``.
+
+        Example:
+            >>> ErrorCauses(unmatched=1).to_dict()["unmatched"]
+            1
+        """
         return {**self.counts, "mismatched": self.mismatched, "unmatched": self.unmatched}
 
 
 def branch_lengths(tree: Trees) -> np.ndarray:
-    """``(N,)`` arc length of every branch of a single tree (its resampled polyline)."""
+    """``(N,)`` arc length of every branch of a single tree (its resampled polyline).
+
+    Example:
+        >>> stem = np.array([[0.0, 0, 0], [0, 0, 10]])
+        >>> branch_lengths(Trees.from_branches([[stem, stem[:, [2, 1, 0]] / 2]], [[-1, 0]], T=8)).tolist()
+        [10.0, 5.0]
+    """
     pts = tree.points.detach().double().cpu().numpy()
     return np.linalg.norm(pts[:, 1:] - pts[:, :-1], axis=-1).sum(-1)
 
@@ -118,6 +131,7 @@ def branch_composition(tree: Trees, xyz: np.ndarray, parent: np.ndarray, node_la
 def error_causes(matches: Sequence[tuple[int, int]], labels_moving: Sequence[int], labels_reference: Sequence[int],
                  comp_moving: Sequence[dict[int, float]], comp_reference: Sequence[dict[int, float]],
                  len_moving: Sequence[float], len_reference: Sequence[float],
+                 parents_moving: Sequence[int] | None = None, parents_reference: Sequence[int] | None = None,
                  ignore: Iterable[int] = DEFAULT_IGNORE) -> ErrorCauses:
     """Name the cause of every wrong matched pair of one registration (module doc).
 
@@ -126,6 +140,8 @@ def error_causes(matches: Sequence[tuple[int, int]], labels_moving: Sequence[int
         labels_moving / labels_reference: every branch's majority organ.
         comp_moving / comp_reference: every branch's composition (:func:`branch_composition`).
         len_moving / len_reference: every branch's length; branch 0 is the main branch.
+        parents_moving / parents_reference: every branch's parent branch (``-1`` for the main one); ``None``: no
+            ``inherited`` cause.
         ignore: labels that are not organs (spurs of the synthetic generator, unknown).
 
     Example (organs 3 and 4 swapped; organ 5 cut into branches 3 and 4 of the moving tree, branch 4 matched to 6):
@@ -143,11 +159,16 @@ def error_causes(matches: Sequence[tuple[int, int]], labels_moving: Sequence[int
     valid = [(i, j) for i, j in matches if lm[i] not in skip and lr[j] not in skip]
     pair_organs = {(lm[i], lr[j]) for i, j in valid}
     spur_m, spur_r = SPUR_SHARE * float(len_moving[0]), SPUR_SHARE * float(len_reference[0])
+    partner = dict(matches)
     for i, j in valid:
         a, b = lm[i], lr[j]
         if a == b:
             continue
-        if float(len_moving[i]) < spur_m or float(len_reference[j]) < spur_r:
+        pi = -1 if parents_moving is None else int(parents_moving[i])
+        pj = -1 if parents_reference is None else int(parents_reference[j])
+        if pi >= 0 and pj >= 0 and partner.get(pi) == pj and lm[pi] != lr[pj]:
+            cause = "inherited"
+        elif float(len_moving[i]) < spur_m or float(len_reference[j]) < spur_r:
             cause = "spur"
         elif comp_moving[i].get(b, 0.0) >= SHARE_MIN or comp_reference[j].get(a, 0.0) >= SHARE_MIN:
             cause = "apex_chain"
@@ -182,12 +203,20 @@ def score_pair(matches: Sequence[tuple[int, int]], moving: Trees, reference: Tre
                skeleton_moving: tuple[np.ndarray, np.ndarray, np.ndarray],
                skeleton_reference: tuple[np.ndarray, np.ndarray, np.ndarray]) -> tuple[IdentityScores, ErrorCauses]:
     """Identity scores (:func:`~torch4dtree.data.identity_scores`, from the trees' labels) and error causes of
-    one registration's matches; ``skeleton_*``: ``(xyz, parent, node_label)`` each tree was read from."""
+    one registration's matches; ``skeleton_*``: ``(xyz, parent, node_label)`` each tree was read from.
+
+    Example (a stem, organ 1, and a leaf, organ 3, matched to themselves):
+        >>> xyz, parent, organ = np.array([[0.0, 0, 0], [0, 0, 5], [0, 0, 10], [4, 0, 5]]), [-1, 0, 1, 1], [1, 1, 1, 3]
+        >>> tree = Trees.from_branches([[xyz[:3], xyz[[1, 3]]]], [[-1, 0]], T=8, labels=[[1, 3]])
+        >>> scores, causes = score_pair([(0, 0), (1, 1)], tree, tree, (xyz, parent, organ), (xyz, parent, organ))
+        >>> scores.precision, scores.recall, causes.pairs
+        (1.0, 1.0, [])
+    """
     lm, lr = moving.label.tolist(), reference.label.tolist()
     scores = identity_scores(matches, lm, lr)
     causes = error_causes(matches, lm, lr, branch_composition(moving, *skeleton_moving),
                           branch_composition(reference, *skeleton_reference), branch_lengths(moving).tolist(),
-                          branch_lengths(reference).tolist())
+                          branch_lengths(reference).tolist(), moving.parent.tolist(), reference.parent.tolist())
     return scores, causes
 
 
