@@ -97,7 +97,7 @@ from ..temporal.registration import register_trajectories, time_warp_trajectory
 from ..temporal.trajectory import resample_trajectory
 from ..trees.structures import TreeSequence
 from .data import EvalData, EvalSettings, Plant4D, primary_source
-from .generative_organs import encode_all, event_rates, organ_forecast, outside_keys_share
+from .generative_organs import event_rates, organ_forecast, outside_keys_share
 from .generative_report import markdown
 from .morphometrics import compare_populations, population_curves
 from .paper import SECONDS
@@ -389,8 +389,8 @@ def _fold(train: list[Plant4D], held: list[Plant4D], settings: EvalSettings, gen
     organ_sample_seconds = (time.perf_counter() - t0) / len(organ_samples)
     train_seqs = [p.sequence for p in train]
     t0 = time.perf_counter()
-    enc_organs = encode_all(model, organ_samples)
-    enc_train = encode_all(model, train_seqs)
+    enc_organs = [model.population.transform(p) for p in organ_samples]
+    enc_train = [model.population.transform(p) for p in train_seqs]
     organ_encode_seconds = (time.perf_counter() - t0) / (len(organ_samples) + len(train))
     frames_all, sq_all, r = _extended_frames(model, encs + enc_organs + enc_train)
     frames, sq = frames_all[:h], sq_all[:h]

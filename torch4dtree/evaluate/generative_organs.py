@@ -3,7 +3,7 @@
 The organ model (:class:`~torch4dtree.model.OrganModel`) has no tree space of its own, so its samples are measured
 in the **paper model's fitted space, as the held-out plants are**: every 4D tree it makes is written in the fold's
 slot layout by ``population.transform`` (within-sequence registration, its representative registered onto the
-union representative, the frames placed in the layout; :func:`encode_all`). The training plants are written the
+union representative, the frames placed in the layout). The training plants are written the
 same way for the reference row "a training plant at random" of this path (``memorise_encoded``): the organ model's
 samples then meet real plants that went through the same encoding (its losses at the layout included), not the
 training trajectories the paper's model was fit on.
@@ -32,11 +32,10 @@ from torch import Tensor
 from ..model import FourDTreeModel, OrganModel
 from ..model.organ_forecast import forecast_organs
 from ..model.organ_table import plant_organs
-from ..temporal.population import SequenceEncoding
 from ..temporal.within import register_sequence
 from ..trees.structures import Trees, TreeSequence
 
-__all__ = ["SHRINK_TOL", "encode_all", "event_rates", "organ_events", "organ_forecast", "outside_keys_share"]
+__all__ = ["SHRINK_TOL", "event_rates", "organ_events", "organ_forecast", "outside_keys_share"]
 
 # an organ shrinks between two frames when it loses more than this share of its length (skeleton noise and the
 # registration's splits move lengths by a few per cent)
@@ -45,18 +44,13 @@ SHRINK_TOL = 0.1
 SAME_TIME = 1e-9
 
 
-def encode_all(model: FourDTreeModel, plants: Sequence[TreeSequence]) -> list[SequenceEncoding]:
-    """Each 4D tree written in ``model``'s fitted layout (``population.transform``)."""
-    return [model.population.transform(p) for p in plants]
-
-
 def outside_keys_share(organs: OrganModel, plant: TreeSequence) -> float:
     """Share in ``[0, 1]`` of ``plant``'s squared SRVF norm (its summed length over frames) on organs at botanical
     keys absent from ``organs`` (module doc).
 
     Example:
         >>> from torch4dtree.data.synthetic import synthetic_plant
-        >>> train = [synthetic_plant("maize", seed=i, n_frames=3, T=16).sequence for i in range(2)]
+        >>> train = [synthetic_plant("maize", seed=i, n_frames=2, T=8).sequence for i in range(2)]
         >>> outside_keys_share(OrganModel().fit(train), train[0])
         0.0
     """
@@ -77,7 +71,7 @@ def organ_events(plant: TreeSequence) -> dict[str, int]:
 
     Example:
         >>> from torch4dtree.data.synthetic import synthetic_plant
-        >>> organ_events(synthetic_plant("maize", seed=0, n_frames=3, T=16).sequence)["present"] > 0
+        >>> organ_events(synthetic_plant("maize", seed=0, n_frames=2, T=8).sequence)["present"] > 0
         True
     """
     if len(plant) < 2:
@@ -96,7 +90,14 @@ def organ_events(plant: TreeSequence) -> dict[str, int]:
 
 def event_rates(plants: Sequence[TreeSequence]) -> dict[str, float]:
     """Pooled :func:`organ_events` of several 4D trees: ``shrink`` and ``vanish`` per organ and frame step, and
-    the ``organ_steps`` they are counted over."""
+    the ``organ_steps`` they are counted over.
+
+    Example:
+        >>> from torch4dtree.data.synthetic import synthetic_plant
+        >>> rates = event_rates([synthetic_plant("maize", seed=0, n_frames=2, T=8).sequence])
+        >>> rates["shrink"], rates["organ_steps"] > 0
+        (0.0, True)
+    """
     tot = {"present": 0, "shrink": 0, "vanish": 0}
     for p in plants:
         for k, v in organ_events(p).items():
