@@ -30,6 +30,7 @@ from torch4dtree.data import (
     write_dataset,
 )
 from torch4dtree.io import LoadOptions, read_dataset, read_sequence, read_swc_skeleton
+from torch4dtree.trees.growth import consistent_frames
 from torch4dtree.trees.skeleton import skeleton_to_trees
 from torch4dtree.trees.structures import Trees
 
@@ -346,9 +347,14 @@ def test_almond_is_a_tree_of_wood_with_scaffolds_that_outgrow_the_leader():
 
 def test_sequence_is_derived_from_the_skeletons_by_the_reader(plants):
     p = plants["tomato"][0]
-    for j, (xyz, parent, organ) in enumerate(p.skeletons):
-        t = skeleton_to_trees(xyz, parent, T=p.settings["T"], node_labels=organ)
+    derived = consistent_frames(p.skeletons, T=p.settings["T"])  # the reader's joint hierarchy over the frames
+    for j, t in enumerate(derived):
         f = p.sequence.frames[j]
+        assert torch.equal(t.label, f.label) and torch.allclose(t.points, f.points)
+    alone = synthetic_plant("tomato", p.seed, times=p.times, joint_hierarchy=False)  # the rule on each frame alone
+    for j, (xyz, parent, organ) in enumerate(alone.skeletons):
+        t = skeleton_to_trees(xyz, parent, T=alone.settings["T"], node_labels=organ)
+        f = alone.sequence.frames[j]
         assert torch.equal(t.label, f.label) and torch.allclose(t.points, f.points)
     # a branch's label is an organ present in that frame (or a spur)
     for labs, organs in zip(_labels(p.sequence.frames), p.organs_per_frame()):

@@ -1,5 +1,6 @@
 """The generative-model section of ``torch4dtree evaluate`` (evaluate/generative.py): metrics on constructed cases,
-the ground metric, the split, and one quick run on a tiny synthetic dataset (about 20 s)."""
+the ground metric, the split, one quick run on a tiny synthetic dataset (about 30 s), and the plausibility and
+novelty checks on a small population."""
 
 from __future__ import annotations
 
@@ -9,8 +10,12 @@ import math
 import pytest
 import torch
 
+from torch4dtree.data.synthetic import synthetic_plant
 from torch4dtree.evaluate import EvalSettings, dumps, load_eval_data
 from torch4dtree.evaluate import generative as gen
+from torch4dtree.evaluate.generative_organs import event_rates, organ_events
+from torch4dtree.evaluate.morphometrics import compare_populations, population_curves
+from torch4dtree.model.organs import OrganModel
 from torch4dtree.temporal import register_trajectories
 
 
@@ -99,19 +104,21 @@ def report(synthetic_folder) -> dict:
 def test_structure_and_timings(report: dict) -> None:
     assert set(report) == {"generative", "timings"}
     g = report["generative"]
-    assert g["source"] == "synthetic" and set(g["generators"]) == set(gen.GENERATORS)
+    assert g["source"] == "synthetic" and set(g["generators"]) == set(gen.ALL_GENERATORS)
     r = g["kinds"]["tomato"]
     assert r["plants"] == 5 and len(r["folds"]) == 1  # quick: one fold
     fold = r["folds"][0]
     assert len(fold["held_out"]) == 2 and len(fold["train"]) == 3 and not set(fold["held_out"]) & set(fold["train"])
-    assert set(r["generators"]) == set(gen.GENERATORS)
-    for stage in ("generative_fit", "generative_mean", "generative_sample", "generative_decode"):
+    assert set(r["generators"]) == set(gen.ALL_GENERATORS)
+    for stage in ("generative_fit", "generative_mean", "generative_sample", "generative_decode",
+                  "generative_organ_fit", "generative_organ_sample", "generative_organ_encode"):
         t = report["timings"][stage]
         assert set(t) == {"seconds", "paper_seconds", "what"} and t["seconds"] > 0
     assert report["timings"]["generative_sample"]["paper_seconds"] == 0.0001
     json.loads(dumps(report))  # JSON-safe
     md = "\n".join(gen.markdown(report))
-    assert "### tomato" in md and "Where the model loses" in md and "1-NNA" in md
+    assert "### tomato" in md and "Where the models lose" in md and "1-NNA" in md
+    assert "| organs |" in md and "forecast of the organ model" in md and "held-out plants |" in md
 
 
 def test_metrics_finite_and_in_range(report: dict) -> None:
@@ -146,3 +153,58 @@ def test_memorised_training_set_and_reconstruction(report: dict) -> None:
         assert p["reconstruction"] <= 1.02 * p["to_mean"], p["plant"]
     # the training plants are nearly reconstructed (all their variance but the modes dropped), held-out ones not
     assert max(fold["training_reconstruction"]) < min(p["reconstruction"] for p in fold["plants"])
+
+
+def test_organ_model_rows_exist_and_are_finite(report: dict) -> None:
+    r = report["generative"]["kinds"]["tomato"]
+    for name in gen.ORGAN_GENERATORS:
+        for key in ("mmd", "cov", "nna"):
+            assert math.isfinite(r["generators"][name][key]["mean"]), (name, key)
+    assert math.isfinite(r["morphometrics"]["organs"]["worst_ratio"]["mean"])
+    assert 0.0 <= r["novelty"]["organs"]["share_closer"] <= 1.0
+    assert 0.0 <= r["reconstruction"]["outside_keys_share"]["min"] <= r["reconstruction"]["outside_keys_share"]["max"]
+    assert r["reconstruction"]["outside_keys_share"]["max"] < 1.0
+    for who in gen.EVENT_ROWS:
+        e = r["organ_events"][who]
+        assert 0.0 <= e["shrink"] <= 1.0 and 0.0 <= e["vanish"] <= 1.0 and e["organ_steps"] > 0, who
+    f = r["organ_forecast"]
+    assert f["plants"] == 2 and 0 <= f["wins_vs_both"] <= min(f["wins_vs_last"], f["wins_vs_mean"])
+    for key in ("organs", "last", "mean"):
+        assert math.isfinite(f[key]["mean"]) and f[key]["min"] >= 0, key
+
+
+def test_organ_events_count_a_vanishing_organ() -> None:
+    plant = synthetic_plant("maize", seed=0, n_frames=3, T=16).sequence
+    grown = organ_events(plant)
+    assert grown["present"] > 0 and grown["shrink"] == 0
+    backwards = type(plant)(plant.frames[[2, 1, 0]], plant.times, plant.name)  # time reversed: organs shrink, vanish
+    rev = event_rates([backwards])
+    assert rev["vanish"] > 0 or rev["shrink"] > 0
+
+
+# ----------------------------------------------------------------------------- the checks, on a small population
+
+
+def _plausible(samples: list, real: list) -> bool:
+    """evaluate's morphometric plausibility: every median within 0.5-2x of the real plants' and 1-NNA below 90 %."""
+    c = compare_populations(population_curves(real), population_curves(samples))
+    return c["worst_ratio"] > 0.5 and c["one_nna"] < 0.9
+
+
+def _copies(samples: list, train: list) -> float:
+    """evaluate's novelty check in morphometric space (log curves, standardised by the training plants): the share
+    of samples closer to a training plant than the training plants' median nearest-neighbour distance / 4."""
+    t = torch.from_numpy(population_curves(train)).log1p().flatten(1)
+    s = torch.from_numpy(population_curves(samples)).log1p().flatten(1)
+    scale = t.std(0).clamp_min(1e-9)
+    return gen.novelty(torch.cdist(s / scale, t / scale), torch.cdist(t / scale, t / scale))["share_closer"]
+
+
+def test_the_organ_model_passes_where_a_collapsed_and_a_memorising_generator_fail() -> None:
+    plants = [synthetic_plant("bean", seed, n_frames=4, T=16).sequence for seed in range(16)]
+    train, held = plants[:8], plants[8:]
+    samples = OrganModel().fit(train).sample(16, generator=torch.Generator().manual_seed(3))
+    assert _plausible(samples, held) and _copies(samples, train) < 0.5
+    middle = sorted(train, key=lambda p: float(p.frames[len(p) - 1].total_length()[0]))[len(train) // 2]
+    assert not _plausible([middle] * 16, held)  # collapsed onto one typical plant
+    assert _copies(train, train) == 1.0  # memorising: every sample is a training plant

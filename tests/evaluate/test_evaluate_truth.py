@@ -10,7 +10,7 @@ import torch
 
 from torch4dtree.data import IdentityScores, relative_warp, synthetic_dataset, synthetic_plant, write_dataset
 from torch4dtree.evaluate import EvalData, EvalSettings, dumps, load_eval_data, truth
-from torch4dtree.trees.registration import ORDER_TOL, register_trees
+from torch4dtree.trees.registration import ORDER_TOL, effective_lambdas, register_trees
 
 T = 16
 
@@ -64,7 +64,9 @@ def test_within_pair_matches_are_the_registrations(tiny):
     ident = register_sequence(seq, lambdas=(1.0, 1.0, 1.0)).identity
     frames = seq.frames
     for j in range(len(seq) - 1):
-        reg = register_trees(frames[j], frames[j + 1], (1.0, 1.0, 1.0), lp_relative=True, order_tol=ORDER_TOL)
+        # as register_sequence registers: lp relative to the next frame, one way
+        reg = register_trees(frames[j], frames[j + 1], effective_lambdas((1.0, 1.0, 1.0), frames[j + 1]),
+                             lp_relative=False, order_tol=ORDER_TOL, symmetric=False)
         assert sorted(truth._pair_matches(ident, j)) == sorted(reg.matches)
 
 
@@ -103,11 +105,11 @@ def test_growth_warp_of_one_plant_on_two_clocks(tmp_path):
     al = [truth._within(p, settings.lambdas, False)[0] for p in (a, b)]
     row = truth._growth_warp(a, b, al[0], al[1], settings, "vertical")
     assert row["identity_mae"] > 0.1  # a strong warp (0.12)
-    assert row["oracle_mae"] < 0.25 * row["identity_mae"]  # 0.013
-    assert row["warp_mae"] < 0.25 * row["identity_mae"]  # 0.014
+    assert row["oracle_mae"] < 0.35 * row["identity_mae"]  # 0.028
+    assert row["warp_mae"] < 0.35 * row["identity_mae"]  # 0.036
     grid = torch.linspace(0, 1, 32, dtype=torch.float64)
     oracle = truth._oracle_warp(a, b, settings)
-    assert truth.warp_mae(oracle, truth.true_warp(b, a, grid)) > 4 * row["oracle_mae"]  # the other direction: 0.23
+    assert truth.warp_mae(oracle, truth.true_warp(b, a, grid)) > 4 * row["oracle_mae"]  # the other direction: 0.21
 
 
 def test_pooled_counts_and_pairs():

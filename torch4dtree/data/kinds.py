@@ -32,6 +32,11 @@ meet plants of realistic shape and size:
   away above it. 4 layers of organs; nodes never move once laid down (wood). 100-165 nodes on the first
   day, 2,000-5,500 on the last; the tree spans 140-175 mm, then 500-700.
 
+Plants of a herbaceous kind differ as crops in one field do: each has a vigour (log-normal, 0.8-1.25 for two
+plants in three) that paces its leaves (tomato and bean leaves per stem growth follow vigour, maize leaves its
+square root roughly: 30 plants of a kind have 4-9 leaves on the main stem, a coefficient of variation of 0.14-0.17),
+makes its side shoots likelier and gives them more leaves; tomato and bean side shoots grow on about 3 plants in 4.
+
 In every frame of these plants (as in every frame of the Pheno4D skeletons, measured against
 the hand-corrected trees) the longest root-to-leaf path leaves the stem for a leaf or a shoot,
 and which organ it ends in changes between frames.
@@ -91,6 +96,27 @@ KIND_MODELS: dict[str, KindModel] = {
     "almond": KindModel("almond", _almond_develop, node_drift=0.03, tau=4.0, droop_pow=1.3, node_spacing=1.4,
                          spur_rate=0.3),
 }
+
+
+# Herbaceous plants of one kind differ as real crops do: a per-plant vigour (log-normal, sd VIGOUR_SD on the log
+# scale, truncated at VIGOUR_CLIP sd) sets how fast leaves follow each other on the stem (leaves over the period
+# ~ vigour), how likely each side shoot is (its probability x vigour) and how many leaves a side shoot makes.
+VIGOUR_SD, VIGOUR_CLIP = 0.22, 2.0
+# maize: leaf appearance is paced by thermal time more strictly than in dicots, so its leaf count follows vigour
+# less (the exponent of vigour in its leaf rate)
+MAIZE_LEAF_RATE_BY_VIGOUR = 0.6
+SHOOT_LEAVES = 3.0  # leaves of a side shoot at vigour 1 (normal noise SHOOT_LEAVES_SD, at least 1, at most 5)
+SHOOT_LEAVES_SD = 0.6
+
+
+def _vigour(rng: np.random.Generator) -> float:
+    """A herbaceous plant's vigour (1 typical; about 0.8-1.25 for two plants in three)."""
+    return math.exp(VIGOUR_SD * float(np.clip(rng.normal(), -VIGOUR_CLIP, VIGOUR_CLIP)))
+
+
+def _shoot_leaves(rng: np.random.Generator, vigour: float) -> int:
+    """How many leaves a side shoot of a plant of this vigour makes."""
+    return int(np.clip(round(SHOOT_LEAVES * vigour + rng.normal(0, SHOOT_LEAVES_SD)), 1, 5))
 
 
 def _horizontal(rng: np.random.Generator, magnitude: float) -> np.ndarray:
@@ -157,6 +183,7 @@ def _tomato_structure(rng: np.random.Generator) -> PlantModel:
     # traits follow identity (module doc)
     # phi0: azimuth of the first true leaf
     size, lean, wob, organs, phi0 = _stem(rng, (0.85, 1.15), (1.0, 8.0), 0.05)
+    vigour = _vigour(rng)
     incline = rng.normal(0.0, 3.0)  # plant-level offset of the leaf inclinations (deg)
     phi_c = phi0 - 0.5 * math.pi + rng.normal(0, 8 * DEG)  # cotyledons across the first true leaf
     cot_node = 19.0 + rng.uniform(-1.5, 1.5)
@@ -168,7 +195,7 @@ def _tomato_structure(rng: np.random.Generator) -> PlantModel:
             wobble_theta=wobble(rng, 0.06), wobble_phi=wobble(rng, 0.08),
         ))
     leaves = {1: 1, 2: 2}
-    internode = rng.uniform(18.0, 24.0)  # plant-specific plastochron (nominal mm of stem growth per leaf)
+    internode = rng.uniform(18.0, 24.0) / vigour  # plant-specific plastochron (nominal mm of stem growth per leaf)
     k, G = 3, 24.0 + rng.uniform(-2, 2)
     while G < 118.0 and k < 50:
         leaves[k] = len(organs)
@@ -187,7 +214,7 @@ def _tomato_structure(rng: np.random.Generator) -> PlantModel:
         G += internode + rng.uniform(-2, 2)
     # vigorous basal side shoots ("suckers") from the lower leaf axils; most plants have one or two
     for k, p in ((3, 0.5), (4, 0.4), (1, 0.12), (5, 0.15)):
-        if rng.uniform() >= p or k not in leaves:
+        if rng.uniform() >= p * vigour or k not in leaves:
             continue
         leaf = organs[leaves[k]]
         shoot = len(organs)
@@ -195,7 +222,7 @@ def _tomato_structure(rng: np.random.Generator) -> PlantModel:
                              width=45.0, theta=(40 + rng.normal(0, 4)) * DEG, index=0))
         phi_s = organs[shoot].phi
         g = 4.0 + rng.uniform(-1, 1)
-        for i in range(1, 4):
+        for i in range(1, _shoot_leaves(rng, vigour) + 1):
             organs.append(Organ(
                 label=organs[shoot].label * 100 + i, parent=shoot, role="leaf", onset=g, node=g + 6.0, depth=2.0,
                 max_len=100.0 * (1 + 0.08 * (i - 1)) * rng.normal(1, 0.05), width=30.0,
@@ -211,10 +238,12 @@ def _tomato_structure(rng: np.random.Generator) -> PlantModel:
 
 def _maize_structure(rng: np.random.Generator) -> PlantModel:
     size, lean, wob, organs, phi0 = _stem(rng, (0.88, 1.12), (0.5, 3.0), 0.02)
+    vigour = _vigour(rng)
     incline = rng.normal(0.0, 3.0)  # plant-level offsets: adjacent leaves of one plant are near copies
     droop = rng.uniform(48, 58)
     whorl = rng.uniform(15.0, 25.0)  # the rolled leaves above the youngest leaf's divergence
-    interval = rng.uniform(40.0, 52.0)  # plant-specific: nominal stem growth between two leaves
+    # plant-specific: nominal stem growth between two leaves
+    interval = rng.uniform(40.0, 52.0) / vigour ** MAIZE_LEAF_RATE_BY_VIGOUR
     # the short first leaf is already out at the first scan
     organs.append(Organ(
         label=1, parent=0, role="leaf", onset=-40.0, node=14.0 + rng.uniform(-2, 2), depth=5.0,
@@ -242,6 +271,7 @@ def _maize_structure(rng: np.random.Generator) -> PlantModel:
 def _bean_structure(rng: np.random.Generator) -> PlantModel:
     # phi0: azimuth of the first primary leaf
     size, lean, wob, organs, phi0 = _stem(rng, (0.88, 1.12), (1.0, 6.0), 0.04)
+    vigour = _vigour(rng)
     incline = rng.normal(0.0, 3.0)
     node1 = 32.0 + rng.uniform(-2, 2)
     leaves = {}
@@ -253,7 +283,7 @@ def _bean_structure(rng: np.random.Generator) -> PlantModel:
             phi=phi0 + (k - 1) * math.pi + rng.normal(0, 6 * DEG), droop=(45 + rng.normal(0, 3)) * DEG,
             droop_max=70 * DEG, wobble_theta=wobble(rng, 0.06), wobble_phi=wobble(rng, 0.08),
         ))
-    interval = rng.uniform(40.0, 48.0)
+    interval = rng.uniform(40.0, 48.0) / vigour
     k, G = 3, 40.0 + rng.uniform(-3, 3)
     while G < 228.0 and k < 50:  # alternate trifoliate leaves, across the primary pair
         leaves[k] = len(organs)
@@ -270,14 +300,14 @@ def _bean_structure(rng: np.random.Generator) -> PlantModel:
         G += interval + rng.uniform(-3, 3)
     # true side shoots from the axils of the primary and lower trifoliate leaves
     for k, p, delay in ((1, 0.45, (80, 110)), (2, 0.45, (80, 110)), (3, 0.35, (50, 75)), (4, 0.2, (50, 75))):
-        if rng.uniform() >= p or k not in leaves:
+        if rng.uniform() >= p * vigour or k not in leaves:
             continue
         shoot = len(organs)
         organs.append(_shoot(rng, organs[leaves[k]], delay=rng.uniform(*delay), max_len=115.0 * rng.normal(1, 0.12),
                              width=60.0, theta=(48 + rng.normal(0, 4)) * DEG, index=0))
         phi_s = organs[shoot].phi
         g = 5.0 + rng.uniform(-1, 1)
-        for i in range(1, 4):
+        for i in range(1, _shoot_leaves(rng, vigour) + 1):
             organs.append(Organ(
                 label=organs[shoot].label * 100 + i, parent=shoot, role="leaf", onset=g, node=g + 8.0, depth=3.0,
                 max_len=100.0 * rng.normal(1, 0.05), width=40.0,

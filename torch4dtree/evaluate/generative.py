@@ -1,7 +1,8 @@
 """The generative model's quality (beyond the paper, which only shows pictures): held-out plants, baselines.
 
-Per kind of plant, the plants are split into folds; each fold is held out once and a :class:`FourDTreeModel` is fit
-on the others (``settings``: ``lambdas``, ``rotation``, ``n_t``). Everything is measured in that fold's model.
+Per kind of plant, the plants are split into folds; each fold is held out once and a :class:`FourDTreeModel` (the
+paper's model; ``settings``: ``lambdas``, ``rotation``, ``n_t``) and an :class:`OrganModel` are fit on the others.
+Everything is measured in that fold's paper model's layout.
 
 **Ground metric.** Every 4D plant is a trajectory of coordinates in which Euclidean distances are the tree
 distances of the fold's slot layout, on the normalised time grid (``n_t``): the model's tree-PCA coefficients,
@@ -31,10 +32,22 @@ cannot rank close generators (a held-out set of 2 gives COV in {0, 1/2, 1} per d
 plants unlike the 5 tomatoes / 4 maize. Only one source is evaluated: ``mat`` if present, else ``synthetic``,
 else ``swc`` (a second source would at least double the section's time, and the raw SWC skeletons are larger).
 
+**The organ model** (:class:`~torch4dtree.model.OrganModel`, the default of ``fit``; fit on the same training
+plants) has no tree space of its own: its samples are written in the fold's layout as the held-out plants are
+(``population.transform``; :mod:`~torch4dtree.evaluate.generative_organs`), and so are the training plants for its
+reference row ``memorise_encoded`` ("a training plant at random" through the same encoding). The extension's basis
+spans what the tree PCA misses of all these frames. Its pool is ``max(h, MORPHO_SAMPLES)`` samples per fold, each
+draw ``h`` of them without replacement; its novelty is measured against the encoded training plants. Beside it:
+the share of held-out squared SRVF norm at botanical keys no training plant had (``outside_keys_share``), organs
+shrinking / vanishing between frames (its samples, the paper model's, training and held-out plants) and its
+forecast of the second half (:func:`~torch4dtree.model.organ_forecast.forecast_organs`) against "the last observed
+frame stays" and the 4D mean.
+
 **Generators** (each draw: as many samples as held-out plants, the usual equal-size protocol; ``DRAWS = 50`` draws
 per fold, 4 when ``quick``; metrics per draw, summarised over all draws of all folds):
 
-* ``model``: the model's sampler (independent truncated standard normal coefficients, ``c = 3``);
+* ``organs``, ``memorise_encoded``: above;
+* ``model``: the paper model's sampler (independent truncated standard normal coefficients, ``c = 3``);
 * ``memorise``: a training plant at random (without replacement within a draw) - the memorising generator;
 * ``paper_scalar``: the authors' synthesis script: one scalar uniform in ``[-0.5, 0.5]`` shared by the first three
   modes (standardised), the others at 0;
@@ -82,10 +95,13 @@ from ..model import FourDTreeModel, OrganModel, TrajectoryMean
 from ..space.pca import principal_axes
 from ..temporal.registration import register_trajectories, time_warp_trajectory
 from ..temporal.trajectory import resample_trajectory
+from ..trees.structures import TreeSequence
 from .data import EvalData, EvalSettings, Plant4D, primary_source
+from .generative_organs import event_rates, organ_forecast, outside_keys_share
+from .generative_report import markdown
 from .morphometrics import compare_populations, population_curves
 from .paper import SECONDS
-from .stats import fmt, md_table, summary
+from .stats import summary
 
 __all__ = ["GENERATORS", "distance4d", "distance_matrix", "folds_of", "markdown", "novelty", "run", "set_metrics"]
 
@@ -99,9 +115,14 @@ PAPER_SCALAR_MODES, PAPER_SCALAR_HALF_RANGE = 3, 0.5
 GENERATORS = ("model", "memorise", "paper_scalar", "mean")
 METRICS = ("mmd", "cov", "nna")
 PER_DRAW = (*METRICS, "nna_samples", "nna_real")
+# the organ model (the default of ``fit``) and "a training plant at random" written in the layout as its samples are
+ORGAN_GENERATORS = ("organs", "memorise_encoded")
+ALL_GENERATORS = (*ORGAN_GENERATORS, *GENERATORS)
 GENERATOR_WHAT = {
-    "model": "the model's sampler (truncated normal, c = 3)",
-    "memorise": "a training plant at random",
+    "organs": "the organ model (OrganModel, default settings), its samples written in the layout",
+    "memorise_encoded": "a training plant at random, written in the layout as the organ model's samples",
+    "model": "the paper's model: its sampler (truncated normal, c = 3)",
+    "memorise": "a training plant at random (its tree-PCA trajectory)",
     "paper_scalar": "the authors' script: one uniform scalar in [-0.5, 0.5] on the first 3 modes",
     "mean": "the 4D mean alone",
 }
@@ -112,12 +133,13 @@ DECODE_BATCH, QUICK_DECODE_BATCH = 8, 2
 PAPER_SECONDS = {"sample": SECONDS["sample"], "mean": SECONDS["mean_4d"]}
 CHUNK = 2048  # pairs per registration call (memory)
 MEAN_REPEATS = 3  # warm refits of the 4D mean timed per fold (median): the fit's own first call loads kernels
-MORPHO_SAMPLES, QUICK_MORPHO_SAMPLES = 10, 2  # decoded samples per generator and fold for the morphometrics
+# decoded samples per generator and fold for the morphometrics (the organ model: at least as many as held-out
+# plants, also its samples in the ground metric)
+MORPHO_SAMPLES, QUICK_MORPHO_SAMPLES = 10, 2
 MORPHO_KEYS = ("worst_ratio", "ks_max", "one_nna")
-# the morphometric comparison also shows the organ model (the default of ``fit``), which has no 4D-metric rows: its
-# samples live outside the paper's slot layout
 MORPHO_GENERATORS = ("organs", *GENERATORS)
-ORGANS_WHAT = "the organ model (OrganModel, default settings)"
+# organs shrinking / vanishing between frames: both models' samples, the training and the held-out plants
+EVENT_ROWS = ("organs", "model", "training", "held_out")
 
 
 # ----------------------------------------------------------------------------- ground metric
@@ -189,14 +211,17 @@ def folds_of(n: int, generator: torch.Generator, max_folds: int = MAX_FOLDS) -> 
 
 
 # ----------------------------------------------------------------------------- one fold
+def _subsets(n: int, h: int, draws: int, gen: torch.Generator) -> Tensor:
+    """``(draws, h)`` indices into ``n`` items: each draw without replacement when ``n >= h``."""
+    return torch.stack([torch.randperm(n, generator=gen)[:h] if n >= h else torch.randint(n, (h,), generator=gen)
+                        for _ in range(draws)])
+
+
 def _pool(name: str, model: FourDTreeModel, train: Tensor, h: int, draws: int, gen: torch.Generator
           ) -> tuple[Tensor, Tensor]:
     """A generator's candidate trajectories ``(P, n_t, k)`` and each draw's indices into them ``(draws, h)``."""
     if name == "memorise":
-        n = train.shape[0]
-        idx = torch.stack([torch.randperm(n, generator=gen)[:h] if n >= h else
-                           torch.randint(n, (h,), generator=gen) for _ in range(draws)])
-        return train, idx
+        return train, _subsets(train.shape[0], h, draws, gen)
     if name == "mean":
         return model.mean.trajectory[None], torch.zeros(draws, h, dtype=torch.long)
     P = draws * h
@@ -303,58 +328,112 @@ def _forecast(model: FourDTreeModel, plant: Plant4D, frames: Tensor) -> dict[str
             "gain": float(f.gain), "seconds": seconds}
 
 
-def _morphometrics(model: FourDTreeModel, pools: dict[str, Tensor], train: list[Plant4D], held: list[Plant4D],
-                   n: int, gen: torch.Generator) -> dict[str, dict[str, Any]]:
+def _morphometrics(model: FourDTreeModel, pools: dict[str, Tensor], organ_samples: list[TreeSequence],
+                   train: list[Plant4D], held: list[Plant4D], n: int
+                   ) -> tuple[dict[str, dict[str, Any]], dict[str, list[TreeSequence]]]:
     """Each generator's samples against the held-out plants by :func:`~torch4dtree.evaluate.morphometrics.
     compare_populations`: the first ``n`` trajectories of its pool ``(P, n_t, k)`` decoded to skeletons; the
-    memorising generator's samples are the training plants as read; ``organs``: ``n`` samples of an
-    :class:`OrganModel` fit on the same training plants. Independent of the ground metric: it sees plants that
-    shrink, lose organs or sprout extra ones."""
+    memorising generator's samples are the training plants as read; ``organs``: the organ model's first ``n``
+    samples. Independent of the ground metric: it sees plants that shrink, lose organs or sprout extra ones. Also
+    returns each generator's 4D trees."""
     real = population_curves([p.sequence for p in held])
-    organs = OrganModel().fit([p.sequence for p in train])
-    out = {"organs": compare_populations(real, population_curves(organs.sample(n, generator=gen)))}
+    seqs = {"organs": organ_samples[:n]}
     for name, pool in pools.items():
-        seqs = [p.sequence for p in train] if name == "memorise" else model.decode_trajectories(pool[:n])
-        out[name] = compare_populations(real, population_curves(seqs))
+        if name in GENERATORS:
+            seqs[name] = [p.sequence for p in train] if name == "memorise" else model.decode_trajectories(pool[:n])
+    return {name: compare_populations(real, population_curves(s)) for name, s in seqs.items()}, seqs
+
+
+def _trajectories(frames: list[Tensor], plants: list[TreeSequence], n_t: int) -> Tensor:
+    """``(B, n_t, k + r)``: per-frame coordinates of 4D trees resampled on the normalised time grid."""
+    return torch.stack([resample_trajectory(x, p.times.to(x), n_t) if len(x) > 1 else x.expand(n_t, -1)
+                        for x, p in zip(frames, plants)])
+
+
+def _fit_organs(train: list[Plant4D]) -> tuple[OrganModel, float]:
+    t0 = time.perf_counter()
+    organs = OrganModel().fit([p.sequence for p in train])
+    return organs, time.perf_counter() - t0
+
+
+def _organ_forecasts(model: FourDTreeModel, organs: OrganModel, held: list[Plant4D], encs: list[Any],
+                     gen: torch.Generator) -> list[dict[str, Any] | None]:
+    """:func:`~torch4dtree.evaluate.generative_organs.organ_forecast` of every held-out plant; the 4D mean
+    baseline at the plant's ages as in :func:`_forecast`."""
+    out: list[dict[str, Any] | None] = []
+    for p, e in zip(held, encs):
+        seq = p.sequence
+        half = len(seq) // 2
+        if half < 1:
+            out.append(None)
+            continue
+        u = ((seq.times[half:] - seq.times[0]).to(torch.float64) / float(model.duration)).clamp(0, 1)
+        mean = model.population.pca.inverse_features(time_warp_trajectory(model.mean.trajectory,
+                                                                          u.to(model.mean.trajectory)))
+        truth = e.aligned.features()[half:]
+        out.append(organ_forecast(model, organs, seq, truth, mean, gen))
     return out
 
 
 def _fold(train: list[Plant4D], held: list[Plant4D], settings: EvalSettings, gen: torch.Generator
           ) -> dict[str, Any]:
     model, fit_seconds = _fit(train, settings)
+    organs, organ_fit_seconds = _fit_organs(train)
     t0 = time.perf_counter()
     encs = [model.population.transform(p.sequence) for p in held]
     encode_seconds = (time.perf_counter() - t0) / len(held)
-    frames, sq, r = _extended_frames(model, encs)
+    h = len(held)
+    n_morpho = QUICK_MORPHO_SAMPLES if settings.quick else MORPHO_SAMPLES
+    t0 = time.perf_counter()
+    organ_samples = organs.sample(max(h, n_morpho), generator=gen)
+    organ_sample_seconds = (time.perf_counter() - t0) / len(organ_samples)
+    train_seqs = [p.sequence for p in train]
+    t0 = time.perf_counter()
+    enc_organs = [model.population.transform(p) for p in organ_samples]
+    enc_train = [model.population.transform(p) for p in train_seqs]
+    organ_encode_seconds = (time.perf_counter() - t0) / (len(organ_samples) + len(train))
+    frames_all, sq_all, r = _extended_frames(model, encs + enc_organs + enc_train)
+    frames, sq = frames_all[:h], sq_all[:h]
+    ns = len(organ_samples)
+    s_alpha = _trajectories(frames_all[h:h + ns], organ_samples, model.n_t)
+    te_alpha = _trajectories(frames_all[h + ns:], train_seqs, model.n_t)
     k = model.population.k
     t_alpha = _pad(model.population.trajectories.detach(), r)
-    r_alpha = torch.stack([resample_trajectory(x, p.sequence.times.to(x), model.n_t) if len(x) > 1 else
-                           x.expand(model.n_t, -1) for x, p in zip(frames, held)])
-    h = len(held)
+    r_alpha = _trajectories(frames, [p.sequence for p in held], model.n_t)
     draws = QUICK_DRAWS if settings.quick else DRAWS
 
     # the generators against the held-out plants
     d_rr = distance_matrix(r_alpha)
     d_tt = distance_matrix(t_alpha)
     d_rt = distance_matrix(r_alpha, t_alpha)
+    d_tete = distance_matrix(te_alpha)
     per_draw: dict[str, list[dict[str, float]]] = {}
     novel: dict[str, dict[str, float]] = {}
     pools: dict[str, Tensor] = {}
     t0 = time.perf_counter()
-    for name in GENERATORS:
-        pool, idx = _pool(name, model, t_alpha[..., :k], h, draws, gen)
-        pools[name] = pool
-        pool = _pad(pool, r)
+    for name in ALL_GENERATORS:
+        if name in ("organs", "memorise_encoded"):
+            pool = s_alpha if name == "organs" else te_alpha
+            idx = _subsets(pool.shape[0], h, draws, gen)
+        else:
+            pool, idx = _pool(name, model, t_alpha[..., :k], h, draws, gen)
+            pools[name] = pool
+            pool = _pad(pool, r)
         d_pr = d_rt.T if name == "memorise" else distance_matrix(pool, r_alpha)  # the training plants: known
         d_ss = _within_draw(pool, idx)
         per_draw[name] = [set_metrics(d_ss[j], d_pr[idx[j]], d_rr) for j in range(draws)]
         if name in ("model", "paper_scalar"):
             novel[name] = novelty(distance_matrix(pool[:NOVELTY_SAMPLES], t_alpha), d_tt)
+        elif name == "organs":  # beside the training plants written in the layout as its samples are
+            novel[name] = novelty(distance_matrix(pool, te_alpha), d_tete)
     metric_seconds = time.perf_counter() - t0
     t0 = time.perf_counter()
-    morpho = _morphometrics(model, pools, train, held, QUICK_MORPHO_SAMPLES if settings.quick else MORPHO_SAMPLES,
-                            gen)
+    morpho, decoded = _morphometrics(model, pools, organ_samples, train, held, n_morpho)
     morpho_seconds = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    events = {"organs": event_rates(decoded["organs"]), "model": event_rates(decoded["model"]),
+              "training": event_rates(train_seqs), "held_out": event_rates([p.sequence for p in held])}
+    event_seconds = time.perf_counter() - t0
     sanity = {m: v for m, v in set_metrics(d_tt, d_tt, d_tt).items() if m in METRICS}  # training set memorised
 
     # reconstruction through the model, beside the mean and the nearest training plant
@@ -363,6 +442,9 @@ def _fold(train: list[Plant4D], held: list[Plant4D], settings: EvalSettings, gen
     mean_r = distance4d(r_alpha, mean.expand_as(r_alpha))
     recon_t = distance4d(t_alpha, _pad(_reconstruct(model, t_alpha[..., :k]), r))
     mean_t = distance4d(t_alpha, mean.expand_as(t_alpha))
+    t0 = time.perf_counter()
+    organ_fc = _organ_forecasts(model, organs, held, encs, gen)
+    organ_forecast_seconds = (time.perf_counter() - t0) / len(held)
     plants = []
     for i, (p, e) in enumerate(zip(held, encs)):
         dropped = float(e.dropped_sq_norm.sum())
@@ -373,9 +455,10 @@ def _fold(train: list[Plant4D], held: list[Plant4D], settings: EvalSettings, gen
             "to_mean": float(mean_r[i]), "nearest_training": float(d_rt[i].min()),
             "outside": float(e.dropped_sq_norm.mean().sqrt()),  # as FourDTreeModel.score().outside
             "outside_share": dropped / (dropped + kept) if dropped + kept > 0 else 0.0,
+            "outside_keys_share": outside_keys_share(organs, p.sequence),
             "off_tree_space": float(off.mean().sqrt()),
             "off_tree_space_share": float(off.sum() / spread.sum()) if float(spread.sum()) > 0 else 0.0,
-            "forecast": _forecast(model, p, frames[i]),
+            "forecast": _forecast(model, p, frames[i]), "organ_forecast": organ_fc[i],
         })
 
     # speed: coefficients -> trajectories, and decoding to skeletons
@@ -396,6 +479,7 @@ def _fold(train: list[Plant4D], held: list[Plant4D], settings: EvalSettings, gen
         "tree_components": k, "extra_dimensions": r, "n_t": model.n_t, "draws": draws,
         "mode_variance_ratio": [float(x) for x in model.pca.explained_variance_ratio],
         "per_draw": per_draw, "novelty": novel, "sanity": sanity, "plants": plants, "morphometrics": morpho,
+        "organ_events": events,
         "training_reconstruction": [float(x) for x in recon_t], "training_to_mean": [float(x) for x in mean_t],
         "training_nn": [float(x) for x in nn_t],
         "held_out_pairs": [float(d_rr[i, j]) for i in range(h) for j in range(i + 1, h)],
@@ -403,7 +487,9 @@ def _fold(train: list[Plant4D], held: list[Plant4D], settings: EvalSettings, gen
                     "mean_in_fit": float(model.report_["seconds"]["mean"]),
                     "encode_per_plant": encode_seconds, "metrics": metric_seconds,
                     "sample_per_plant": sample_seconds, "decode_per_plant": decode_seconds,
-                    "morphometrics": morpho_seconds},
+                    "morphometrics": morpho_seconds, "organ_fit": organ_fit_seconds,
+                    "organ_sample_per_plant": organ_sample_seconds, "organ_encode_per_plant": organ_encode_seconds,
+                    "organ_forecast_per_plant": organ_forecast_seconds, "organ_events": event_seconds},
     }
 
 
@@ -423,16 +509,17 @@ def _kind(plants: list[Plant4D], settings: EvalSettings, offset: int, progress: 
         done.append(_fold([p for i, p in enumerate(plants) if i not in held], [plants[i] for i in f], settings, gen))
     held_plants = [p for d in done for p in d["plants"]]
     fc = [p["forecast"] for p in held_plants if p["forecast"] is not None]
+    ofc = [p["organ_forecast"] for p in held_plants if p["organ_forecast"] is not None]
     gens = {name: {m: summary(r[m] for d in done for r in d["per_draw"][name]) for m in PER_DRAW}
-            for name in GENERATORS}
+            for name in ALL_GENERATORS}
     return {
         "plants": len(plants), "folds": [{k: v for k, v in d.items() if k != "per_draw"} | {
             "generators": {name: {m: summary(r[m] for r in d["per_draw"][name])["mean"] for m in PER_DRAW}
-                           for name in GENERATORS}} for d in done],
+                           for name in ALL_GENERATORS}} for d in done],
         "generators": gens,
         "novelty": {name: {k: summary(d["novelty"][name][k] for d in done)["mean"]
                            for k in ("threshold", "share_closer", "nearest_min", "nearest_median")}
-                    for name in ("model", "paper_scalar")},
+                    for name in ("organs", "model", "paper_scalar")},
         "sanity": {m: max(d["sanity"][m] for d in done) if m != "cov" else min(d["sanity"][m] for d in done)
                    for m in METRICS},
         "morphometrics": {name: {m: summary(d["morphometrics"][name][m] for d in done) for m in MORPHO_KEYS}
@@ -448,11 +535,19 @@ def _kind(plants: list[Plant4D], settings: EvalSettings, offset: int, progress: 
             "outside_share": summary(p["outside_share"] for p in held_plants),
             "off_tree_space": summary(p["off_tree_space"] for p in held_plants),
             "off_tree_space_share": summary(p["off_tree_space_share"] for p in held_plants),
+            "outside_keys_share": summary(p["outside_keys_share"] for p in held_plants),
         },
+        "organ_events": {who: {m: summary(d["organ_events"][who][m] for d in done)["mean"]
+                               for m in ("shrink", "vanish", "organ_steps")} for who in EVENT_ROWS},
         "forecast": {**{k: summary(f[k] for f in fc) for k in ("model", "last", "mean")},
                      "tree_pca": {k: summary(f["tree_pca"][k] for f in fc) for k in ("model", "last", "mean")},
                      "plants": len(fc), "wins_vs_last": sum(f["model"] < f["last"] for f in fc),
                      "wins_vs_mean": sum(f["model"] < f["mean"] for f in fc)},
+        "organ_forecast": {**{k: summary(f[k] for f in ofc) for k in ("organs", "last", "mean")},
+                           "final_length": {k: summary(f["final_length"][k] for f in ofc) for k in ("organs", "last")},
+                           "plants": len(ofc), "wins_vs_last": sum(f["organs"] < f["last"] for f in ofc),
+                           "wins_vs_mean": sum(f["organs"] < f["mean"] for f in ofc),
+                           "wins_vs_both": sum(f["organs"] < min(f["last"], f["mean"]) for f in ofc)},
     }
 
 
@@ -475,7 +570,15 @@ def run(datas: dict[str, EvalData], settings: EvalSettings, progress: bool = Fal
 
     timings = {
         "generative_fit": {"seconds": sum(f["seconds"]["fit"] for f in folds), "paper_seconds": None,
-                           "what": f"fit the 4D model, {len(folds)} fold(s) ({source})"},
+                           "what": f"fit the paper's 4D model, {len(folds)} fold(s) ({source})"},
+        "generative_organ_fit": {"seconds": sum(f["seconds"]["organ_fit"] for f in folds), "paper_seconds": None,
+                                 "what": f"fit the organ model, {len(folds)} fold(s) ({source})"},
+        "generative_organ_sample": {"seconds": mean_of("organ_sample_per_plant"), "paper_seconds": None,
+                                    "what": "one 4D plant of the organ model, sampled and assembled"},
+        "generative_organ_encode": {"seconds": mean_of("organ_encode_per_plant"), "paper_seconds": None,
+                                    "what": "one organ-model sample or training plant written in the layout"},
+        "generative_organ_forecast": {"seconds": mean_of("organ_forecast_per_plant"), "paper_seconds": None,
+                                      "what": "one held-out plant's organ forecast and its baseline, encoded"},
         "generative_mean": {"seconds": mean_of("mean"), "paper_seconds": PAPER_SECONDS["mean"],
                             "what": "the 4D Karcher mean of one fit, with its temporal registrations (warm: median of "
                                     f"{MEAN_REPEATS} refits, mean over folds; the paper's figure averages plants "
@@ -491,110 +594,3 @@ def run(datas: dict[str, EvalData], settings: EvalSettings, progress: bool = Fal
     }
     out["samples_per_second"] = 1.0 / timings["generative_sample"]["seconds"]
     return {"generative": out, "timings": timings}
-
-
-# ----------------------------------------------------------------------------- report
-def _pm(s: dict[str, float], percent: bool = False) -> str:
-    d = 2 if percent else 3
-    return f"{fmt(s['mean'], d, percent)} ± {fmt(s['std'], d, percent)}"
-
-
-def _nna_gap(x: dict[str, Any]) -> float:
-    """How far 1-NNA's accuracies on samples and on real plants are from 50 % (mean of both): a collapse (100 % / 0 %)
-    reaches 1-NNA 50 % but is as far from ideal as separable sets."""
-    return (abs(x["nna_samples"]["mean"] - 0.5) + abs(x["nna_real"]["mean"] - 0.5)) / 2
-
-
-def _verdicts(r: dict[str, Any]) -> list[str]:
-    """Plain sentences where the model loses to a baseline (on the means; 1-NNA by :func:`_nna_gap`)."""
-    g = r["generators"]
-    out = []
-    for label, badness in (("MMD", lambda x: x["mmd"]["mean"]), ("COV", lambda x: -x["cov"]["mean"]),
-                           ("1-NNA", _nna_gap)):
-        ours = badness(g["model"])
-        better = [b for b in GENERATORS[1:] if badness(g[b]) < ours]
-        if better:
-            out.append(f"{label}: the model is beaten by {', '.join(better)}.")
-    rec = r["reconstruction"]
-    if rec["held_out"]["mean"] > rec["held_out_nearest_training"]["mean"]:
-        out.append("Reconstruction: held-out plants are farther from their reconstruction than from the nearest "
-                   "training plant.")
-    f = r["forecast"]
-    if f["plants"]:
-        for b, what in (("last", "the last observed frame"), ("mean", "the 4D mean")):
-            for space, label in ((f, "layout"), (f["tree_pca"], "tree-PCA coordinates")):
-                if space["model"]["mean"] >= space[b]["mean"]:
-                    out.append(f"Forecast ({label}): the model's mean error is not below {what}'s.")
-    return out or ["The model is not beaten by any baseline on these means."]
-
-
-def markdown(report: dict[str, Any]) -> list[str]:
-    """The section's lines of ``report.md``."""
-    g = report.get("generative")
-    if not g:
-        return []
-    lines = ["## Generative model (held-out plants; beyond the paper)", ""]
-    if g["source"] is None:
-        return lines + ["No data source.", ""]
-    lines += [f"Source `{g['source']}`" + (f" (skipped: {', '.join(g['skipped_sources'])})" if g["skipped_sources"]
-                                         else "") + ". Each fold is held out once; the model is fit on the other "
-              "plants. Ground metric: the 4D distance after temporal registration of trajectories in each fold's "
-              "slot layout (tree PCA plus what it misses of the held-out frames). Each draw has as many samples "
-              "as held-out plants; MMD lower is better, COV higher, 1-NNA ideally 50 % (its accuracy on samples / "
-              "on real plants beside it). With a handful of plants these are coarse checks, not a ranking.", ""]
-    for kind, r in g["kinds"].items():
-        lines += [f"### {kind}", ""]
-        if "skipped" in r:
-            lines += [f"Skipped: {r['skipped']}.", ""]
-            continue
-        folds = r["folds"]
-        lines += [f"{r['plants']} plants, {len(folds)} fold(s): " + "; ".join(
-            f"{len(f['held_out'])} held out / {len(f['train'])} fit, {f['modes']} mode(s), {f['draws']} draws"
-            for f in folds) + ".", ""]
-        gs = r["generators"]
-        lines += md_table(["generator", "MMD", "COV", "1-NNA", "1-NNA samples / real", "what"],
-                          [[name, _pm(gs[name]["mmd"]), _pm(gs[name]["cov"], True), _pm(gs[name]["nna"], True),
-                            f"{fmt(gs[name]['nna_samples']['mean'], 2, True)} / "
-                            f"{fmt(gs[name]['nna_real']['mean'], 2, True)}", g["generators"][name]]
-                           for name in GENERATORS])
-        mo = r.get("morphometrics")
-        if mo:
-            lines += ["", "Morphometrics (decoded samples against the held-out plants; length, height, spread, tips, "
-                      "branch points at ages 1/4 to 1; the memorising generator's samples are the training plants; "
-                      "ideal: worst median ratio 1, KS 0, 1-NNA 50 %):", ""]
-            what = {"organs": ORGANS_WHAT, **g["generators"]}
-            lines += md_table(["generator", "worst median ratio", "KS max", "1-NNA", "what"],
-                              [[name, _pm(mo[name]["worst_ratio"]), _pm(mo[name]["ks_max"]),
-                                _pm(mo[name]["one_nna"], True), what[name]] for name in MORPHO_GENERATORS])
-        s, nv, rec = r["sanity"], r["novelty"], r["reconstruction"]
-        lines += ["", f"Held-out plants are {_pm(r['held_out_pairs'])} apart and {_pm(rec['held_out_to_mean'])} "
-                  "from the 4D mean: where the first is larger, a generator that stays near the mean makes every "
-                  "real plant's nearest neighbour a sample and reaches 1-NNA 50 % by collapse (samples 100 % / "
-                  "real 0 %).",
-                  "", f"Sanity (training set memorised, against itself): MMD {fmt(s['mmd'])}, COV "
-                  f"{fmt(s['cov'], 2, True)}, 1-NNA {fmt(s['nna'], 2, True)} (must be 0, 100 %, 0 %). "
-                  "Novelty (share of samples closer to a training plant than the median training nearest-neighbour "
-                  "distance / 4): " + ", ".join(f"{k} {fmt(v['share_closer'], 2, True)} (threshold "
-                                                f"{fmt(v['threshold'])})" for k, v in nv.items()) + ".", ""]
-        lines += md_table(["reconstruction (4D distance)", "held out", "training"],
-                          [["through the model", _pm(rec["held_out"]), _pm(rec["training"])],
-                           ["the 4D mean alone", _pm(rec["held_out_to_mean"]), _pm(rec["training_to_mean"])],
-                           ["nearest training plant", _pm(rec["held_out_nearest_training"]), "0"]])
-        lines += ["", f"Held-out branches outside the layout (dropped): {_pm(rec['outside'])} (tree distance, RMS "
-                  f"over frames), {_pm(rec['outside_share'], True)} of the frames' squared norm. Held-out frames off "
-                  f"the training tree PCA (in the ground metric, out of the model's reach): "
-                  f"{_pm(rec['off_tree_space'])} (RMS), {_pm(rec['off_tree_space_share'], True)} of their squared "
-                  "spread about the tree mean.", ""]
-        f = r["forecast"]
-        if f["plants"]:
-            fp = f["tree_pca"]
-            lines += md_table(["forecast (second half of the frames)", "tree distance in the layout",
-                               "in tree-PCA coordinates", "model wins (layout)"],
-                              [["model", _pm(f["model"]), _pm(fp["model"]), "-"],
-                               ["last observed frame stays", _pm(f["last"]), _pm(fp["last"]),
-                                f"{f['wins_vs_last']} / {f['plants']}"],
-                               ["4D mean at the same age", _pm(f["mean"]), _pm(fp["mean"]),
-                                f"{f['wins_vs_mean']} / {f['plants']}"]])
-            lines.append("")
-        lines += ["**Where the model loses:** " + " ".join(_verdicts(r)), ""]
-    return lines

@@ -1,0 +1,166 @@
+"""The organ model's rows of the generative section (docs/method.md §5.8, §7): what it needs beyond the paper's model.
+
+The organ model (:class:`~torch4dtree.model.OrganModel`) has no tree space of its own, so its samples are measured
+in the **paper model's fitted space, as the held-out plants are**: every 4D tree it makes is written in the fold's
+slot layout by ``population.transform`` (within-sequence registration, its representative registered onto the
+union representative, the frames placed in the layout). The training plants are written the
+same way for the reference row "a training plant at random" of this path (``memorise_encoded``): the organ model's
+samples then meet real plants that went through the same encoding (its losses at the layout included), not the
+training trajectories the paper's model was fit on.
+
+Also here, measured on 4D trees whatever made them:
+
+* :func:`outside_keys_share`: the share of a held-out plant's squared SRVF norm on organs at botanical keys the
+  training plants never had (the organ model cannot write them). A curve's squared SRVF norm is its length
+  (``|q|^2 = |c'|``), so the share is the summed length over frames of those organs (and their descendants, whose
+  keys extend theirs) over the plant's summed length.
+* :func:`organ_events`: organs shrinking or vanishing between consecutive frames, with organ identities from the
+  within-sequence registration (the same path for samples, training and held-out plants).
+* :func:`organ_forecast`: the organ model's forecast (:func:`~torch4dtree.model.organ_forecast.forecast_organs`)
+  of a held-out plant's second half, beside "the last observed frame stays", both written in the layout as a
+  whole sequence (observed frames, then the guess) and read at the plant's own frame times, and the 4D mean.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import torch
+from torch import Tensor
+
+from ..model import FourDTreeModel, OrganModel
+from ..model.organ_forecast import forecast_organs
+from ..model.organ_table import plant_organs
+from ..temporal.within import register_sequence
+from ..trees.structures import Trees, TreeSequence
+
+__all__ = ["SHRINK_TOL", "event_rates", "organ_events", "organ_forecast", "outside_keys_share"]
+
+# an organ shrinks between two frames when it loses more than this share of its length (skeleton noise and the
+# registration's splits move lengths by a few per cent)
+SHRINK_TOL = 0.1
+# times closer than this (data units) are one instant when a forecast is read at the plant's frame times
+SAME_TIME = 1e-9
+
+
+def outside_keys_share(organs: OrganModel, plant: TreeSequence) -> float:
+    """Share in ``[0, 1]`` of ``plant``'s squared SRVF norm (its summed length over frames) on organs at botanical
+    keys absent from ``organs`` (module doc).
+
+    Example:
+        >>> from torch4dtree.data.synthetic import synthetic_plant
+        >>> train = [synthetic_plant("maize", seed=i, n_frames=2, T=8).sequence for i in range(2)]
+        >>> outside_keys_share(OrganModel().fit(train), train[0])
+        0.0
+    """
+    known = set(organs.keys)
+    total = outside = 0.0
+    for o in plant_organs(plant, plant.normalized_times().to(torch.float64), organs.settings.registration):
+        mass = o["length"] * float(o["growth"].sum())
+        total += mass
+        if o["key"] not in known:
+            outside += mass
+    return outside / total if total > 0 else 0.0
+
+
+def organ_events(plant: TreeSequence) -> dict[str, int]:
+    """Organs of a 4D tree between consecutive frames: ``present`` (organ-frames with a next frame), ``shrink``
+    (present in both, the later more than :data:`SHRINK_TOL` shorter) and ``vanish`` (gone in the next frame);
+    organ identities from the within-sequence registration.
+
+    Example:
+        >>> from torch4dtree.data.synthetic import synthetic_plant
+        >>> organ_events(synthetic_plant("maize", seed=0, n_frames=2, T=8).sequence)["present"] > 0
+        True
+    """
+    if len(plant) < 2:
+        return {"present": 0, "shrink": 0, "vanish": 0}
+    seq = plant.to(torch.float64)
+    ident = register_sequence(seq).identity  # (n, S)
+    ptr = seq.frames.ptr[:-1]
+    lengths = seq.frames.branch_lengths()
+    glob = ident + ptr[:, None]
+    length = torch.where(ident >= 0, lengths[glob.clamp(min=0)], torch.zeros((), dtype=lengths.dtype))
+    alive = length > 0
+    now, nxt = alive[:-1], alive[1:]
+    shrink = now & nxt & (length[1:] < (1 - SHRINK_TOL) * length[:-1])
+    return {"present": int(now.sum()), "shrink": int(shrink.sum()), "vanish": int((now & ~nxt).sum())}
+
+
+def event_rates(plants: Sequence[TreeSequence]) -> dict[str, float]:
+    """Pooled :func:`organ_events` of several 4D trees: ``shrink`` and ``vanish`` per organ and frame step, and
+    the ``organ_steps`` they are counted over.
+
+    Example:
+        >>> from torch4dtree.data.synthetic import synthetic_plant
+        >>> rates = event_rates([synthetic_plant("maize", seed=0, n_frames=2, T=8).sequence])
+        >>> rates["shrink"], rates["organ_steps"] > 0
+        (0.0, True)
+    """
+    tot = {"present": 0, "shrink": 0, "vanish": 0}
+    for p in plants:
+        for k, v in organ_events(p).items():
+            tot[k] += v
+    n = max(tot["present"], 1)
+    return {"shrink": tot["shrink"] / n, "vanish": tot["vanish"] / n, "organ_steps": float(tot["present"])}
+
+
+def _read_at(features: Tensor, times: Tensor, at: Tensor) -> Tensor:
+    """``(m, F)`` features of frames at ``times (n,)`` (increasing) read at ``at (m,)``, linear between frames,
+    the first / last frame outside their span."""
+    t = times.to(features.dtype)
+    a = at.to(features.dtype).clamp(float(t[0]), float(t[-1]))
+    hi = torch.searchsorted(t, a).clamp(1, len(t) - 1) if len(t) > 1 else torch.zeros(len(a), dtype=torch.long)
+    lo = (hi - 1).clamp(min=0)
+    span = (t[hi] - t[lo]).clamp_min(SAME_TIME)
+    w = ((a - t[lo]) / span).clamp(0, 1)[:, None]
+    return (1 - w) * features[lo] + w * features[hi]
+
+
+def _whole(observed: TreeSequence, future: TreeSequence) -> TreeSequence:
+    """The observed frames followed by the future ones after the last observed time."""
+    keep = [j for j in range(len(future)) if float(future.times[j]) > float(observed.times[-1]) + SAME_TIME]
+    if not keep:
+        return observed
+    f = future[keep].to(torch.float64)
+    o = observed.to(torch.float64)
+    return TreeSequence(Trees.cat([o.frames, f.frames]), torch.cat([o.times, f.times]), observed.name)
+
+
+def organ_forecast(paper: FourDTreeModel, organs: OrganModel, plant: TreeSequence, truth: Tensor, mean: Tensor,
+                   generator: torch.Generator) -> dict[str, Any] | None:
+    """Forecast errors of one held-out plant's second half (``n // 2`` frames observed; module doc).
+
+    Args:
+        paper: the fold's paper model (its layout is the ground metric).
+        organs: the fold's organ model.
+        plant: the held-out 4D tree.
+        truth: ``(n - n // 2, F)`` its forecast frames' layout features in its whole-sequence encoding.
+        mean: ``(n - n // 2, F)`` the 4D mean's features at the same ages (the mean baseline).
+        generator: the forecast's random stream.
+
+    Returns:
+        ``{"organs", "last", "mean"}``: mean tree distance in the layout over the forecast frames (``last``:
+        the last observed frame kept, encoded as the forecast is); ``final_length``: the relative error of the
+        last frame's total length of the forecast and of the last observed frame; ``None`` below 2 frames.
+    """
+    n = len(plant)
+    half = n // 2
+    if half < 1 or n - half < 1:
+        return None
+    observed, at = plant[list(range(half))], plant.times[half:]
+    fc = forecast_organs(organs, observed, n=1, generator=generator)[0]
+    last = TreeSequence(observed.frames[[half - 1] * (n - half)], at.to(observed.times.dtype), plant.name)
+    errs, final = {}, {}
+    true_final = float(plant.frames[n - 1].total_length()[0])
+    for key, guess in (("organs", fc), ("last", last)):
+        whole = _whole(observed, guess)
+        enc = paper.population.transform(whole)
+        feats = _read_at(enc.aligned.features().to(truth), whole.times, at)
+        errs[key] = float((feats - truth).norm(dim=-1).mean())
+        j = int(torch.searchsorted(whole.times.to(torch.float64).contiguous(),
+                                   at[-1].to(torch.float64).reshape(1)).clamp(max=len(whole) - 1))
+        final[key] = abs(float(whole.frames[j].total_length()[0]) - true_final) / max(true_final, SAME_TIME)
+    errs["mean"] = float((mean.to(truth) - truth).norm(dim=-1).mean())
+    return {**errs, "final_length": final}
