@@ -102,7 +102,8 @@ def speed(out: Path, plants: int, frames: int, kind: str, seed: int, samples: in
     """The speed check (module doc): seconds (wall clock and CPU) to read, fit and sample, decoded plants a minute,
     peak memory."""
     data = out / "data"
-    _, synth_s, _ = _timed(lambda: None if data.exists() else run_synth(kind, plants, seed, str(data), frames=frames))
+    _, synth_s, _ = _timed(lambda: None if data.exists() else run_synth(kind, plants, seed, str(data), frames=frames,
+                                                                                  variation=True))
     loaded, read_s, read_cpu = _timed(lambda: read_dataset(data, LoadOptions(T=T)))
     train = [s.sequence for s in loaded]
     model = OrganModel()

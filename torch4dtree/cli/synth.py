@@ -21,12 +21,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, metavar="DIR",
                    help="output dataset folder; created if missing, must be empty unless --overwrite")
     p.add_argument("--overwrite", action="store_true", help="write into a non-empty folder, replacing its files")
+    p.add_argument("--vary", action="store_true",
+                   help="herbaceous plants vary in vigour as crops in one field do: leaf count, side shoots and their "
+                        "leaves (tomato, maize, bean)")
 
 
 def run(args: argparse.Namespace) -> int:
     from ..data import run_synth
 
     out = run_synth(kind=args.kind, plants=args.plants, seed=args.seed, out=args.out, frames=args.frames,
-                    overwrite=args.overwrite)
+                    overwrite=args.overwrite, variation=args.vary)
     print(f"wrote {args.plants} synthetic {args.kind} plants ({args.frames} frames each) to {out}/")
     return 0

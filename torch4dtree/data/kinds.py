@@ -32,7 +32,8 @@ meet plants of realistic shape and size:
   away above it. 4 layers of organs; nodes never move once laid down (wood). 100-165 nodes on the first
   day, 2,000-5,500 on the last; the tree spans 140-175 mm, then 500-700.
 
-Plants of a herbaceous kind differ as crops in one field do: each has a vigour (log-normal, 0.8-1.25 for two
+With ``variation=True`` (:func:`~torch4dtree.data.synthetic.synthetic_plant`; ``torch4dtree synth --vary``), plants
+of a herbaceous kind differ as crops in one field do: each has a vigour (log-normal, 0.8-1.25 for two
 plants in three) that paces its leaves (tomato and bean leaves per stem growth follow vigour, maize leaves its
 square root roughly: 30 plants of a kind have 4-9 leaves on the main stem, a coefficient of variation of 0.14-0.17),
 makes its side shoots likelier and gives them more leaves; tomato and bean side shoots grow on about 3 plants in 4.
@@ -98,9 +99,10 @@ KIND_MODELS: dict[str, KindModel] = {
 }
 
 
-# Herbaceous plants of one kind differ as real crops do: a per-plant vigour (log-normal, sd VIGOUR_SD on the log
-# scale, truncated at VIGOUR_CLIP sd) sets how fast leaves follow each other on the stem (leaves over the period
-# ~ vigour), how likely each side shoot is (its probability x vigour) and how many leaves a side shoot makes.
+# With ``vary`` (synthetic_plant's ``variation``), herbaceous plants of one kind differ as real crops do: a per-plant
+# vigour (log-normal, sd VIGOUR_SD on the log scale, truncated at VIGOUR_CLIP sd) sets how fast leaves follow each
+# other on the stem (leaves over the period ~ vigour), how likely each side shoot is (its probability x vigour) and
+# how many leaves a side shoot makes.
 VIGOUR_SD, VIGOUR_CLIP = 0.22, 2.0
 # maize: leaf appearance is paced by thermal time more strictly than in dicots, so its leaf count follows vigour
 # less (the exponent of vigour in its leaf rate)
@@ -109,13 +111,19 @@ SHOOT_LEAVES = 3.0  # leaves of a side shoot at vigour 1 (normal noise SHOOT_LEA
 SHOOT_LEAVES_SD = 0.6
 
 
-def _vigour(rng: np.random.Generator) -> float:
-    """A herbaceous plant's vigour (1 typical; about 0.8-1.25 for two plants in three)."""
+def _vigour(rng: np.random.Generator, vary: bool) -> float:
+    """A herbaceous plant's vigour (1 typical; about 0.8-1.25 for two plants in three); 1 without drawing when not
+    ``vary`` (so the plants of a seed stay those of the generator without variation)."""
+    if not vary:
+        return 1.0
     return math.exp(VIGOUR_SD * float(np.clip(rng.normal(), -VIGOUR_CLIP, VIGOUR_CLIP)))
 
 
-def _shoot_leaves(rng: np.random.Generator, vigour: float) -> int:
-    """How many leaves a side shoot of a plant of this vigour makes."""
+def _shoot_leaves(rng: np.random.Generator, vigour: float, vary: bool) -> int:
+    """How many leaves a side shoot of a plant of this vigour makes (``SHOOT_LEAVES`` without drawing when not
+    ``vary``)."""
+    if not vary:
+        return int(SHOOT_LEAVES)
     return int(np.clip(round(SHOOT_LEAVES * vigour + rng.normal(0, SHOOT_LEAVES_SD)), 1, 5))
 
 
@@ -179,11 +187,11 @@ def _shoot(rng: np.random.Generator, leaf: Organ, delay: float, max_len: float, 
     )
 
 
-def _tomato_structure(rng: np.random.Generator) -> PlantModel:
+def _tomato_structure(rng: np.random.Generator, vary: bool = False) -> PlantModel:
     # traits follow identity (module doc)
     # phi0: azimuth of the first true leaf
     size, lean, wob, organs, phi0 = _stem(rng, (0.85, 1.15), (1.0, 8.0), 0.05)
-    vigour = _vigour(rng)
+    vigour = _vigour(rng, vary)
     incline = rng.normal(0.0, 3.0)  # plant-level offset of the leaf inclinations (deg)
     phi_c = phi0 - 0.5 * math.pi + rng.normal(0, 8 * DEG)  # cotyledons across the first true leaf
     cot_node = 19.0 + rng.uniform(-1.5, 1.5)
@@ -222,7 +230,7 @@ def _tomato_structure(rng: np.random.Generator) -> PlantModel:
                              width=45.0, theta=(40 + rng.normal(0, 4)) * DEG, index=0))
         phi_s = organs[shoot].phi
         g = 4.0 + rng.uniform(-1, 1)
-        for i in range(1, _shoot_leaves(rng, vigour) + 1):
+        for i in range(1, _shoot_leaves(rng, vigour, vary) + 1):
             organs.append(Organ(
                 label=organs[shoot].label * 100 + i, parent=shoot, role="leaf", onset=g, node=g + 6.0, depth=2.0,
                 max_len=100.0 * (1 + 0.08 * (i - 1)) * rng.normal(1, 0.05), width=30.0,
@@ -236,9 +244,9 @@ def _tomato_structure(rng: np.random.Generator) -> PlantModel:
     return PlantModel(KIND_MODELS["tomato"], size, lean, wob, organs)
 
 
-def _maize_structure(rng: np.random.Generator) -> PlantModel:
+def _maize_structure(rng: np.random.Generator, vary: bool = False) -> PlantModel:
     size, lean, wob, organs, phi0 = _stem(rng, (0.88, 1.12), (0.5, 3.0), 0.02)
-    vigour = _vigour(rng)
+    vigour = _vigour(rng, vary)
     incline = rng.normal(0.0, 3.0)  # plant-level offsets: adjacent leaves of one plant are near copies
     droop = rng.uniform(48, 58)
     whorl = rng.uniform(15.0, 25.0)  # the rolled leaves above the youngest leaf's divergence
@@ -268,10 +276,10 @@ def _maize_structure(rng: np.random.Generator) -> PlantModel:
     return PlantModel(KIND_MODELS["maize"], size, lean, wob, organs)
 
 
-def _bean_structure(rng: np.random.Generator) -> PlantModel:
+def _bean_structure(rng: np.random.Generator, vary: bool = False) -> PlantModel:
     # phi0: azimuth of the first primary leaf
     size, lean, wob, organs, phi0 = _stem(rng, (0.88, 1.12), (1.0, 6.0), 0.04)
-    vigour = _vigour(rng)
+    vigour = _vigour(rng, vary)
     incline = rng.normal(0.0, 3.0)
     node1 = 32.0 + rng.uniform(-2, 2)
     leaves = {}
@@ -307,7 +315,7 @@ def _bean_structure(rng: np.random.Generator) -> PlantModel:
                              width=60.0, theta=(48 + rng.normal(0, 4)) * DEG, index=0))
         phi_s = organs[shoot].phi
         g = 5.0 + rng.uniform(-1, 1)
-        for i in range(1, _shoot_leaves(rng, vigour) + 1):
+        for i in range(1, _shoot_leaves(rng, vigour, vary) + 1):
             organs.append(Organ(
                 label=organs[shoot].label * 100 + i, parent=shoot, role="leaf", onset=g, node=g + 8.0, depth=3.0,
                 max_len=100.0 * rng.normal(1, 0.05), width=40.0,
@@ -351,7 +359,7 @@ def _almond_buds(rng: np.random.Generator, axes: Sequence[Organ], internode: flo
     return out[:ALMOND_MAX_LATERALS]
 
 
-def _almond_structure(rng: np.random.Generator) -> PlantModel:
+def _almond_structure(rng: np.random.Generator, vary: bool = False) -> PlantModel:
     # A young almond tree over two flushes, wood only: sympodial shoots that zig-zag at nodes a few mm apart, buds
     # breaking at random over both flushes into laterals as long as the leader, and a weak leader that bends and is
     # overtaken by the upright top scaffold.
@@ -414,7 +422,7 @@ def _spur(rng: np.random.Generator, label: int, parent: int, node: float, onset:
     )
 
 
-# kind -> draws one plant's organs from an rng
-STRUCTURES: dict[str, Callable[[np.random.Generator], PlantModel]] = {
+# kind -> draws one plant's organs from an rng (and whether plants vary in vigour: herbaceous kinds only)
+STRUCTURES: dict[str, Callable[[np.random.Generator, bool], PlantModel]] = {
     "tomato": _tomato_structure, "maize": _maize_structure, "bean": _bean_structure, "almond": _almond_structure,
 }

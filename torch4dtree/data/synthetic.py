@@ -158,6 +158,7 @@ def synthetic_plant(
     spurs: float = 1.0,
     hierarchy_kwargs: dict | None = None,
     joint_hierarchy: bool = True,
+    variation: bool = False,
 ) -> SyntheticPlant:
     """Generate one synthetic growing plant: per-frame skeletons with organ labels, and the trees derived from them.
 
@@ -186,6 +187,9 @@ def synthetic_plant(
         joint_hierarchy: choose each frame's main branch to agree with the next frame's
             (:func:`~torch4dtree.trees.growth.consistent_frames`), as :func:`~torch4dtree.io.read_sequence` does
             with the written SWC files by default; ``False``: the rule on each frame alone.
+        variation: herbaceous plants get a per-plant vigour that varies their leaf count, side shoots and the
+            leaves of those (as plants of one crop in a field differ; module :mod:`~torch4dtree.data.kinds`);
+            ``False`` keeps the plants of a seed those of the generator without it.
 
     Organs grow as real ones do, with no cap that would let the longest-path rule find the stem: the
     derived hierarchy is whatever the rule makes, as on real scans.
@@ -212,7 +216,7 @@ def synthetic_plant(
         raise ValueError(f"noise, jitter and spurs must be non-negative, got {noise}, {jitter}, {spurs}")
     kid = KINDS.index(kind)  # different kinds with one seed get unrelated draws
     rng = np.random.default_rng([seed, kid, 0])
-    model = STRUCTURES[kind](rng)
+    model = STRUCTURES[kind](rng, variation)
     if times is None:
         if n_frames < 2:
             raise ValueError(f"a synthetic plant needs at least 2 frames, got n_frames={n_frames}")

@@ -214,8 +214,10 @@ def read_ground_truth(dataset_dir: str | Path) -> dict:
     return meta
 
 
-def run_synth(kind: str, plants: int, seed: int, out: str, frames: int = 10, overwrite: bool = False) -> Path:
-    """What ``torch4dtree synth --kind K --plants N --seed S --out DIR`` does: generate and write a dataset.
+def run_synth(kind: str, plants: int, seed: int, out: str, frames: int = 10, overwrite: bool = False,
+              variation: bool = False) -> Path:
+    """What ``torch4dtree synth --kind K --plants N --seed S --out DIR [--vary]`` does: generate and write a dataset
+    (``variation``: plants vary in vigour, :func:`~torch4dtree.data.synthetic.synthetic_plant`).
 
     Example:
         >>> import tempfile
@@ -223,4 +225,5 @@ def run_synth(kind: str, plants: int, seed: int, out: str, frames: int = 10, ove
         >>> sorted(p.name for p in (out / "bean_00").iterdir())
         ['day_000.swc', 'day_001.swc', 'times.json']
     """
-    return write_dataset(synthetic_dataset(kind, plants, seed, n_frames=frames), out, overwrite=overwrite)
+    return write_dataset(synthetic_dataset(kind, plants, seed, n_frames=frames, variation=variation), out,
+                         overwrite=overwrite)
