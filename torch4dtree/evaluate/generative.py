@@ -86,12 +86,14 @@ from __future__ import annotations
 
 import math
 import time
+from concurrent.futures import Executor
 from typing import Any
 
 import torch
 from torch import Tensor
 
 from ..model import FourDTreeModel, OrganModel, TrajectoryMean
+from ..parallel import pair_matrix
 from ..space.pca import principal_axes
 from ..temporal.registration import register_trajectories, time_warp_trajectory
 from ..temporal.trajectory import resample_trajectory
@@ -156,18 +158,11 @@ def distance4d(a: Tensor, b: Tensor) -> Tensor:
     return torch.cat(out) if out else a.new_zeros(0)
 
 
-def distance_matrix(x: Tensor, y: Tensor | None = None) -> Tensor:
+def distance_matrix(x: Tensor, y: Tensor | None = None, executor: Executor | None = None) -> Tensor:
     """``(n, m)`` ground distances between trajectories ``x (n, n_t, k)`` and ``y (m, n_t, k)``; ``y=None``: the
-    symmetric matrix of ``x`` (each pair once, zero diagonal)."""
-    if y is None:
-        n = x.shape[0]
-        i, j = torch.triu_indices(n, n, 1)
-        out = x.new_zeros(n, n)
-        d = distance4d(x[i], x[j])
-        out[i, j], out[j, i] = d, d
-        return out
-    i, j = torch.meshgrid(torch.arange(x.shape[0]), torch.arange(y.shape[0]), indexing="ij")
-    return distance4d(x[i.reshape(-1)], y[j.reshape(-1)]).reshape(x.shape[0], y.shape[0])
+    symmetric matrix of ``x`` (each pair once, zero diagonal). ``executor``: pieces of ``CHUNK`` pairs run there
+    (:func:`~torch4dtree.parallel.pair_matrix`), the same numbers as inline."""
+    return pair_matrix(distance4d, x, y, chunk=CHUNK, executor=executor)
 
 
 def set_metrics(d_ss: Tensor, d_sr: Tensor, d_rr: Tensor) -> dict[str, float]:
@@ -255,11 +250,12 @@ def _within_draw(pool: Tensor, idx: Tensor) -> Tensor:
     return out
 
 
-def _fit(train: list[Plant4D], settings: EvalSettings) -> tuple[FourDTreeModel, float]:
+def _fit(train: list[Plant4D], settings: EvalSettings, executor: Executor | None = None
+         ) -> tuple[FourDTreeModel, float]:
     n_t = min(settings.n_t, QUICK_N_T) if settings.quick else settings.n_t
     model = FourDTreeModel(settings.model_settings(n_t))
     t0 = time.perf_counter()
-    model.fit([p.sequence for p in train])
+    model.fit([p.sequence for p in train], executor=executor)
     return model, time.perf_counter() - t0
 
 
@@ -375,12 +371,12 @@ def _organ_forecasts(model: FourDTreeModel, organs: OrganModel, held: list[Plant
     return out
 
 
-def _fold(train: list[Plant4D], held: list[Plant4D], settings: EvalSettings, gen: torch.Generator
-          ) -> dict[str, Any]:
-    model, fit_seconds = _fit(train, settings)
+def _fold(train: list[Plant4D], held: list[Plant4D], settings: EvalSettings, gen: torch.Generator,
+          executor: Executor | None = None) -> dict[str, Any]:
+    model, fit_seconds = _fit(train, settings, executor)
     organs, organ_fit_seconds = _fit_organs(train)
     t0 = time.perf_counter()
-    encs = [model.population.transform(p.sequence) for p in held]
+    encs = model.population.transform_many([p.sequence for p in held], executor)
     encode_seconds = (time.perf_counter() - t0) / len(held)
     h = len(held)
     n_morpho = QUICK_MORPHO_SAMPLES if settings.quick else MORPHO_SAMPLES
@@ -389,8 +385,8 @@ def _fold(train: list[Plant4D], held: list[Plant4D], settings: EvalSettings, gen
     organ_sample_seconds = (time.perf_counter() - t0) / len(organ_samples)
     train_seqs = [p.sequence for p in train]
     t0 = time.perf_counter()
-    enc_organs = [model.population.transform(p) for p in organ_samples]
-    enc_train = [model.population.transform(p) for p in train_seqs]
+    enc_organs = model.population.transform_many(organ_samples, executor)
+    enc_train = model.population.transform_many(train_seqs, executor)
     organ_encode_seconds = (time.perf_counter() - t0) / (len(organ_samples) + len(train))
     frames_all, sq_all, r = _extended_frames(model, encs + enc_organs + enc_train)
     frames, sq = frames_all[:h], sq_all[:h]
@@ -403,10 +399,10 @@ def _fold(train: list[Plant4D], held: list[Plant4D], settings: EvalSettings, gen
     draws = QUICK_DRAWS if settings.quick else DRAWS
 
     # the generators against the held-out plants
-    d_rr = distance_matrix(r_alpha)
-    d_tt = distance_matrix(t_alpha)
-    d_rt = distance_matrix(r_alpha, t_alpha)
-    d_tete = distance_matrix(te_alpha)
+    d_rr = distance_matrix(r_alpha, executor=executor)
+    d_tt = distance_matrix(t_alpha, executor=executor)
+    d_rt = distance_matrix(r_alpha, t_alpha, executor=executor)
+    d_tete = distance_matrix(te_alpha, executor=executor)
     per_draw: dict[str, list[dict[str, float]]] = {}
     novel: dict[str, dict[str, float]] = {}
     pools: dict[str, Tensor] = {}
@@ -419,13 +415,14 @@ def _fold(train: list[Plant4D], held: list[Plant4D], settings: EvalSettings, gen
             pool, idx = _pool(name, model, t_alpha[..., :k], h, draws, gen)
             pools[name] = pool
             pool = _pad(pool, r)
-        d_pr = d_rt.T if name == "memorise" else distance_matrix(pool, r_alpha)  # the training plants: known
+        # the training plants: known
+        d_pr = d_rt.T if name == "memorise" else distance_matrix(pool, r_alpha, executor=executor)
         d_ss = _within_draw(pool, idx)
         per_draw[name] = [set_metrics(d_ss[j], d_pr[idx[j]], d_rr) for j in range(draws)]
         if name in ("model", "paper_scalar"):
-            novel[name] = novelty(distance_matrix(pool[:NOVELTY_SAMPLES], t_alpha), d_tt)
+            novel[name] = novelty(distance_matrix(pool[:NOVELTY_SAMPLES], t_alpha, executor=executor), d_tt)
         elif name == "organs":  # beside the training plants written in the layout as its samples are
-            novel[name] = novelty(distance_matrix(pool, te_alpha), d_tete)
+            novel[name] = novelty(distance_matrix(pool, te_alpha, executor=executor), d_tete)
     metric_seconds = time.perf_counter() - t0
     t0 = time.perf_counter()
     morpho, decoded = _morphometrics(model, pools, organ_samples, train, held, n_morpho)
@@ -494,7 +491,8 @@ def _fold(train: list[Plant4D], held: list[Plant4D], settings: EvalSettings, gen
 
 
 # ----------------------------------------------------------------------------- the section
-def _kind(plants: list[Plant4D], settings: EvalSettings, offset: int, progress: bool) -> dict[str, Any]:
+def _kind(plants: list[Plant4D], settings: EvalSettings, offset: int, progress: bool,
+          executor: Executor | None = None) -> dict[str, Any]:
     folds = folds_of(len(plants), settings.generator(SEED_OFFSET + offset))
     if not folds:
         return {"plants": len(plants), "skipped": f"{len(plants)} plants: at least 4 are needed (2 to fit, 2 held out)"}
@@ -506,7 +504,8 @@ def _kind(plants: list[Plant4D], settings: EvalSettings, offset: int, progress: 
     done = []
     for f in tqdm(folds, disable=not progress, desc="generative folds", unit="fold"):
         held = set(f)
-        done.append(_fold([p for i, p in enumerate(plants) if i not in held], [plants[i] for i in f], settings, gen))
+        done.append(_fold([p for i, p in enumerate(plants) if i not in held], [plants[i] for i in f], settings, gen,
+                          executor))
     held_plants = [p for d in done for p in d["plants"]]
     fc = [p["forecast"] for p in held_plants if p["forecast"] is not None]
     ofc = [p["organ_forecast"] for p in held_plants if p["organ_forecast"] is not None]
@@ -551,8 +550,10 @@ def _kind(plants: list[Plant4D], settings: EvalSettings, offset: int, progress: 
     }
 
 
-def run(datas: dict[str, EvalData], settings: EvalSettings, progress: bool = False) -> dict[str, Any]:
-    """The section (module doc): ``{"generative": {...}, "timings": {...}}``."""
+def run(datas: dict[str, EvalData], settings: EvalSettings, progress: bool = False, executor: Executor | None = None
+        ) -> dict[str, Any]:
+    """The section (module doc): ``{"generative": {...}, "timings": {...}}``; ``executor``: where the fits'
+    registrations, the encodings and the ground distances run (the same numbers as inline)."""
     source = primary_source(datas)
     out: dict[str, Any] = {"source": source, "skipped_sources": [s for s in datas if s != source],
                            "generators": dict(GENERATOR_WHAT), "kinds": {}}
@@ -560,7 +561,7 @@ def run(datas: dict[str, EvalData], settings: EvalSettings, progress: bool = Fal
         return {"generative": out, "timings": {}}
     data = datas[source]
     for j, kind in enumerate(data.kinds):
-        out["kinds"][kind] = _kind(data.by_kind(kind), settings, 10 * j, progress)
+        out["kinds"][kind] = _kind(data.by_kind(kind), settings, 10 * j, progress, executor)
     folds = [f for r in out["kinds"].values() for f in r.get("folds", [])]
     if not folds:
         return {"generative": out, "timings": {}}
