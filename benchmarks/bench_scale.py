@@ -5,7 +5,8 @@ fresh process; growth exponents (log-log slopes) and the all-pairs speed-up.
     python benchmarks/bench_scale.py [--sizes 25 50 100 200] [--frames 3] [--T 16] [--workers 1 2]
                                      [--stages read fit_organs fit_paper pairs] [--keep DIR] [--json]
 
-The same as ``torch4dtree benchmark scale`` with every knob; the default run takes about 15 minutes on 2 idle cores.
+The same as ``torch4dtree benchmark scale`` with every knob; 25-100 plants take about 18 minutes on 2 idle
+cores, 200 about 30 more.
 """
 
 from __future__ import annotations

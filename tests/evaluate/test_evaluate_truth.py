@@ -105,11 +105,11 @@ def test_growth_warp_of_one_plant_on_two_clocks(tmp_path):
     al = [truth._within(p, settings.lambdas, False)[0] for p in (a, b)]
     row = truth._growth_warp(a, b, al[0], al[1], settings, "vertical")
     assert row["identity_mae"] > 0.1  # a strong warp (0.12)
-    assert row["oracle_mae"] < 0.35 * row["identity_mae"]  # 0.028
-    assert row["warp_mae"] < 0.35 * row["identity_mae"]  # 0.036
+    assert row["oracle_mae"] < 0.25 * row["identity_mae"]  # 0.013
+    assert row["warp_mae"] < 0.25 * row["identity_mae"]  # 0.014
     grid = torch.linspace(0, 1, 32, dtype=torch.float64)
     oracle = truth._oracle_warp(a, b, settings)
-    assert truth.warp_mae(oracle, truth.true_warp(b, a, grid)) > 4 * row["oracle_mae"]  # the other direction: 0.21
+    assert truth.warp_mae(oracle, truth.true_warp(b, a, grid)) > 4 * row["oracle_mae"]  # the other direction: 0.23
 
 
 def test_pooled_counts_and_pairs():

@@ -239,8 +239,9 @@ def test_identities_survive_growth_between_consecutive_frames(kind):
                               ).sequence.frames for seed in (0, 1)]
     precision, recall = pooled_scores([(f[j], f[j + 1], "none") for f in frames for j in range(len(f) - 1)])
     # the almond's buds break at random over two flushes, so laterals appear between older ones and shift the
-    # positions of those above (measured 0.957 / 0.901 on these 18 pairs)
-    assert precision >= 0.95 and recall >= (0.88 if kind == "almond" else 0.95), (precision, recall)
+    # positions of those above: the default rule measures 0.971 / 0.948 on these 18 pairs, so for the almond's
+    # recall this guards the measured level, just under the goal of 0.95
+    assert precision >= 0.95 and recall >= (0.94 if kind == "almond" else 0.95), (precision, recall)
 
 
 @pytest.mark.parametrize("kind", ["tomato", "maize", "bean", "almond"])

@@ -27,7 +27,7 @@ from typing import Any
 __all__ = ["DEFAULT_SIZES", "STAGES", "benchmark_scale", "format_table", "growth_exponent", "run_stage",
            "write_dataset"]
 
-# plants per run of the default benchmark (the sizes; about 15 minutes on 2 idle cores)
+# plants per run of the default benchmark (25-100 plants took 18 minutes on 2 idle cores; 200 add about 30)
 DEFAULT_SIZES = (25, 50, 100, 200)
 # frames per plant and points per branch: small, so that the largest size stays within minutes
 DEFAULT_FRAMES = 3

@@ -27,7 +27,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "parts are skipped, with a note, when the data is missing); "
                         "scale: time and peak memory of reading, fitting (both models) and all-pairs distances of "
                         "synthetic tomatoes at --sizes plants, each stage in a fresh process, with growth exponents "
-                        "and the all-pairs speed-up of 2 workers over 1 (docs/scaling.md; about 15 minutes)")
+                        "and the all-pairs speed-up of 2 workers over 1 (docs/scaling.md; 25-100 plants about "
+                        "18 minutes)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--quick", action="store_true", help="all: tiny sizes (about a minute), for a first look")
     p.add_argument("--pairs", type=positive_int, default=1000, metavar="N",

@@ -22,7 +22,7 @@ DISTRIBUTED_HINT = "pip install torch4dtree[distributed]"
 
 
 class InlineExecutor(Executor):
-    """Runs every task at once in the calling thread (no pickling): the default, today's single-process behaviour.
+    """Runs every task at once in the calling thread (no pickling): what running without an executor means.
 
     Example:
         >>> with InlineExecutor() as ex:
