@@ -69,7 +69,7 @@ def main() -> None:
     p.add_argument("--reps", type=int, default=3)
     p.add_argument("--threads", type=int, nargs="+", default=[1, 2])
     p.add_argument("--loads", nargs="+", default=["idle", "busy"], choices=("idle", "busy"))
-    p.add_argument("--chunk", type=int, default=None, help="pairs a thread takes at a time (default: PAIR_CHUNK)")
+    p.add_argument("--chunk", type=int, default=None, help="pairs a thread takes at a time (default: THREAD_CHUNK)")
     p.add_argument("--min-pairs", type=int, default=None,
                    help="pairs a thread at least (default: PARALLEL_MIN_PAIRS)")
     p.add_argument("--json", action="store_true")
@@ -85,7 +85,7 @@ def main() -> None:
         "tree DP": (lambda i: dp_warp(q1[i], q2[i], **tree_dp), lambda i, j: dp_warp(q1[i:j], q2[i:j], **tree_dp)),
     }
     if a.chunk is not None:
-        dp_numba.PAIR_CHUNK = a.chunk
+        dp_numba.THREAD_CHUNK = a.chunk
     if a.min_pairs is not None:
         dp_numba.PARALLEL_MIN_PAIRS = a.min_pairs
     for _, call in paths.values():  # compile / load the kernels, start the pools
@@ -109,7 +109,7 @@ def main() -> None:
             for proc in procs:
                 proc.terminate()
                 proc.wait()
-    chunk = getattr(dp_numba, "PAIR_CHUNK", None)  # None: a version that splits batches in fixed shares
+    chunk = getattr(dp_numba, "THREAD_CHUNK", None)  # None: a version that splits batches in fixed shares
     if a.json:
         print(json.dumps({"T": a.T, "pairs": a.pairs, "cpus": os.cpu_count(), "chunk": chunk,
                           "min_pairs": dp_numba.PARALLEL_MIN_PAIRS, "results": results}))

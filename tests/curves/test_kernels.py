@@ -100,7 +100,7 @@ def test_chunked_threads_equal_single_calls(monkeypatch, chunk):
     singles = [register_curves(y[b], x[b], rotation="so3") for b in range(11)]
     warps = [dp_warp(srvf(x[b]), srvf(y[b]), neighbourhood=4) for b in range(11)]
     monkeypatch.setattr(dp_numba, "PARALLEL_MIN_PAIRS", 2)
-    monkeypatch.setattr(dp_numba, "PAIR_CHUNK", chunk)
+    monkeypatch.setattr(dp_numba, "THREAD_CHUNK", chunk)
     monkeypatch.setattr(dp_numba, "idle_cores", lambda: 64)
     before = numba.get_num_threads()
     numba.set_num_threads(min(2, numba.config.NUMBA_NUM_THREADS))

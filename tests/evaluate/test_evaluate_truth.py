@@ -67,7 +67,7 @@ def test_within_pair_matches_are_the_registrations(tiny):
         # as register_sequence registers: lp relative to the next frame, one way
         reg = register_trees(frames[j], frames[j + 1], effective_lambdas((1.0, 1.0, 1.0), frames[j + 1]),
                              lp_relative=False, order_tol=ORDER_TOL, symmetric=False)
-        assert sorted(truth._pair_matches(ident, j)) == sorted(reg.matches)
+        assert sorted(truth.pair_matches(ident, j)) == sorted(reg.matches)
 
 
 def test_a_frame_registered_with_itself_scores_one(tiny):

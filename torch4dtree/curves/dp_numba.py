@@ -4,7 +4,7 @@ kernels of :mod:`.kernels_numba`.
 See :mod:`torch4dtree.curves.register` for the energy and the lattice. ``nb_pairs`` is the only kernel called from
 Python, so the whole engine is one compiled signature (a cold compile of each extra entry point would repeat most of
 the work; compiled once and cached on disk). Batches of at least ``2 * PARALLEL_MIN_PAIRS`` pairs are shared between
-threads (the kernel releases the GIL) in chunks of ``PAIR_CHUNK`` pairs handed out on demand; smaller ones run on the
+threads (the kernel releases the GIL) in chunks of ``THREAD_CHUNK`` pairs handed out on demand; smaller ones run on the
 calling thread alone. Every pair's result is computed alone, so it is the same whatever the batch, chunk or thread.
 The first compile in a process prints a one-line notice.
 """
@@ -47,7 +47,7 @@ PARALLEL_MIN_PAIRS = 16
 # thread keeps taking chunks until none is left, so a helper thread that waits for a core (the other cores busy) holds
 # up at most one chunk instead of a fixed share of the batch; large enough that the per-call overhead of the kernel
 # (a few microseconds against about 0.3 ms a pair at T = 100) stays negligible.
-PAIR_CHUNK = 4
+THREAD_CHUNK = 4
 
 _POOL: ThreadPoolExecutor | None = None
 _POOL_LOCK = threading.Lock()
@@ -166,8 +166,8 @@ def run_pairs(curves: bool, mov: np.ndarray, ref: np.ndarray, srvf_input: bool, 
     chunks = itertools.count()  # next() is atomic under the GIL: each chunk goes to exactly one thread
 
     def take() -> None:
-        while (a := next(chunks) * PAIR_CHUNK) < B:
-            pairs(a, min(a + PAIR_CHUNK, B))
+        while (a := next(chunks) * THREAD_CHUNK) < B:
+            pairs(a, min(a + THREAD_CHUNK, B))
 
     futures = [_pool().submit(take) for _ in range(1, threads)]
     take()

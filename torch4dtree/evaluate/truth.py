@@ -48,7 +48,7 @@ from ..io.dataset import DatasetError
 from .data import EvalData, EvalSettings, Plant4D
 from .stats import fmt, md_table, summary
 
-__all__ = ["markdown", "plant_pairs", "pooled", "run", "true_warp", "warp_mae"]
+__all__ = ["markdown", "pair_matches", "plant_pairs", "pooled", "run", "true_warp", "warp_mae"]
 
 # every pair of plants up to this many plants (28 pairs), disjoint neighbouring pairs beyond (module doc)
 ALL_PAIRS_UP_TO = 8
@@ -118,8 +118,16 @@ def warp_mae(warp: Tensor, true: Tensor) -> float:
     return float((warp.double() - true.double()).abs().mean())
 
 
-def _pair_matches(identity: Tensor, j: int) -> list[tuple[int, int]]:
-    """The matches of frame ``j`` onto ``j + 1`` in a within-sequence identity table ``(n, S)``."""
+def pair_matches(identity: Tensor, j: int) -> list[tuple[int, int]]:
+    """The matches of frame ``j`` onto ``j + 1`` in a within-sequence identity table ``(n, S)``.
+
+    ``identity[j, slot]`` is frame ``j``'s branch in that slot (``-1``: none); returns ``(branch_j, branch_j+1)``.
+
+    Example:
+        >>> import torch
+        >>> pair_matches(torch.tensor([[0, -1, 1], [0, 1, 2]]), 0)
+        [(0, 0), (1, 2)]
+    """
     a, b = identity[j].tolist(), identity[j + 1].tolist()
     return [(x, y) for x, y in zip(a, b) if x >= 0 and y >= 0]
 
@@ -147,7 +155,7 @@ def _within(plant: Plant4D, lambdas: Sequence[float], progress: bool) -> tuple[A
     aligned = register_sequence(seq, lambdas=lambdas, rotation="none", progress=progress)
     labels = _frame_labels(plant)
     ident = aligned.identity.cpu()
-    scores = [identity_scores(_pair_matches(ident, j), labels[j], labels[j + 1]) for j in range(len(seq) - 1)]
+    scores = [identity_scores(pair_matches(ident, j), labels[j], labels[j + 1]) for j in range(len(seq) - 1)]
     return aligned, scores, identity_accuracy(aligned, seq.frames.label)
 
 
