@@ -107,7 +107,8 @@ class FourDTreeModel(nn.Module):
 
     Args:
         settings: the tree space (:class:`~torch4dtree.temporal.population.Population`: ``lambdas``, ``rotation``,
-            ``n_t``, ``tree_components`` / ``tree_variance``, ``medoid_candidates``, ``registration``, ``cross``),
+            ``n_t``, ``tree_components`` / ``tree_variance``, ``medoid_candidates``, ``registration``, ``cross``,
+            ``max_slots``),
             the 4D Karcher mean (``mean_iters``, ``temporal``), the trajectory PCA (``modes`` / ``mode_variance``)
             and the sampler's bound ``c``; default :class:`~torch4dtree.settings.ModelSettings`'s.
 
@@ -130,7 +131,7 @@ class FourDTreeModel(nn.Module):
             raise TypeError(f"settings must be a ModelSettings, got {type(settings).__name__}")
         self.settings = s = settings or ModelSettings()
         self.population = Population(s.lambdas, s.rotation, s.n_t, s.tree_components, s.tree_variance,
-                                     s.medoid_candidates, s.registration, s.cross)
+                                     s.medoid_candidates, s.registration, s.cross, s.max_slots)
         self.mean = TrajectoryMean(s.mean_iters, registration=s.temporal)
         self.pca = TrajectoryPCA(s.modes, s.mode_variance)
         self.sampler = TruncatedNormalSampler(1, s.c)
