@@ -405,8 +405,9 @@ class Population(FittedModule):
 
     def transform_many(self, sequences: Sequence[TreeSequence], executor: Executor | None = None
                        ) -> list[SequenceEncoding]:
-        """:meth:`transform` of every 4D tree of ``sequences``; on ``executor`` one task a plant, shipping
-        :meth:`portable` (results on this population's device, equal to :meth:`transform`'s).
+        """:meth:`transform` of every 4D tree of ``sequences``; on ``executor`` one task a plant, :meth:`portable`
+        packed once (:func:`~torch4dtree.parallel.run_tasks`' ``shared``; results on this population's device, equal
+        to :meth:`transform`'s).
 
         Example:
             >>> from torch4dtree.data import synthetic_plant
@@ -418,8 +419,8 @@ class Population(FittedModule):
         seqs = list(sequences)
         if executor is None:
             return [self.transform(s) for s in seqs]
-        lean = self.portable()
-        return run_tasks(transform_sequence, [(lean, s) for s in seqs], executor, self.ref_points.device)
+        return run_tasks(transform_sequence, [(s,) for s in seqs], executor, self.ref_points.device,
+                         shared=self.portable())
 
     def transform(self, sequence: TreeSequence, aligned: AlignedSequence | None = None) -> SequenceEncoding:
         """Write a new 4D tree into the fitted space (module doc): within-sequence registration, registration of
