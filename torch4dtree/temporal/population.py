@@ -10,7 +10,7 @@
    representatives at evenly spaced ranks of total length, ties by name; the one with the smallest sum of
    squared registered distances of all representatives onto it wins);
 3. **cross-sequence registration** onto a growing **union representative** and the **union layout** of all frames
-   (:func:`combine_many`). The union representative starts as the reference's; the other representatives are
+   (:func:`place_targets`). The union representative starts as the reference's; the other representatives are
    registered onto it one by one, in the order of their registered distance to the reference (ties by name, so the
    result does not depend on the input order): a branch matched to a union slot goes there, also to a slot an
    earlier plant opened, and an unmatched one opens a slot whose branch joins the union representative
