@@ -17,6 +17,7 @@ from .settings import (
     CROSS_ORDER_TOL,
     CROSS_POSITIONS,
     DEFAULT_HIERARCHY,
+    DEFAULT_MAX_SLOTS,
     DEFAULT_MODEL,
     DEFAULT_NT,
     DEFAULT_POSITIONS,
@@ -93,6 +94,7 @@ class Config:
     mode_variance: float = 0.95
     c: float = 3.0  # sampler truncation (both models): coefficients / latent noise in [-c, c]
     medoid_candidates: int = 3  # candidates for the population's reference 4D tree
+    max_slots: int | None = DEFAULT_MAX_SLOTS  # the population layout's slot bound (null: unbounded)
     mean_iters: int = 10  # rounds of the 4D Karcher mean
     # the organ model (settings.OrganSettings): latent kernel width (sd), chance an organ keeps its donor plant,
     # log-length noise
@@ -142,7 +144,8 @@ class Config:
                              tree_components=self.tree_components, tree_variance=self.tree_variance,
                              modes=self.modes, mode_variance=self.mode_variance, c=self.c,
                              medoid_candidates=self.medoid_candidates, mean_iters=self.mean_iters,
-                             registration=self.registration_settings(), cross=self.cross_settings())
+                             registration=self.registration_settings(), cross=self.cross_settings(),
+                             max_slots=self.max_slots)
 
     def organ_settings(self) -> OrganSettings:
         """The :class:`~torch4dtree.model.OrganModel` settings these give (``c``, the ``organ_*`` keys, the

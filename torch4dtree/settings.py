@@ -44,6 +44,9 @@ DEFAULT_HIERARCHY = "straightest"
 DEFAULT_T = 64  # points per branch
 DEFAULT_POSITIONS = "rank"  # pair registrations
 DEFAULT_NT = 32  # common time samples of a trajectory
+# the population's union layout keeps at most this many slots (the ones carrying the most of the training frames'
+# norm; docs/scaling.md): bounds the fit's features and registrations in the number of plants
+DEFAULT_MAX_SLOTS = 512
 ORDER_TOL = 0.02  # siblings closer than this share of their parent may match in any order
 # within-sequence registrations (frame j onto j + 1): lp 9 relative favours identities between consecutive frames
 WITHIN_LAMBDAS = (1.0, 1.0, 9.0)
@@ -364,6 +367,7 @@ class ModelSettings(_PlainDict):
         medoid_candidates: candidates for the population's reference 4D tree.
         mean_iters: rounds of the 4D Karcher mean.
         registration, cross, temporal: the stages' settings.
+        max_slots: the population layout's slot bound (``None``: unbounded).
 
     Example:
         >>> s = ModelSettings(n_t=8, cross=CrossSettings(lp=None))
@@ -388,8 +392,10 @@ class ModelSettings(_PlainDict):
     registration: RegistrationSettings = field(default_factory=RegistrationSettings)
     cross: CrossSettings = field(default_factory=CrossSettings)
     temporal: TemporalSettings = field(default_factory=TemporalSettings)
+    max_slots: int | None = DEFAULT_MAX_SLOTS
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "max_slots", _optional_int("max_slots", self.max_slots, 1))
         object.__setattr__(self, "lambdas", check_lambdas(self.lambdas))
         check_choice("rotation", self.rotation, ROTATIONS)
         object.__setattr__(self, "n_t", check_at_least("n_t", self.n_t, 2))

@@ -20,10 +20,17 @@ def test_stages_in_process(tmp_path):
     for stage in ("read", "fit_organs", "pairs"):
         r = scale.run_stage(stage, root, T=8)
         assert r["plants"] == 3 and r["frames"] == 6 and r["seconds"] > 0
-        assert r["peak_mb"] >= r["base_mb"] > 0
+        assert r["peak_mb"] >= r["base_mb"] > 0 and r["cpu_seconds"] >= 0
     assert scale.run_stage("pairs", root, T=8)["pairs"] == 3
     with pytest.raises(ValueError, match="unknown stage"):
         scale.run_stage("nope", root)
+
+
+def test_paper_fit_stage_reports_its_layout(tmp_path):
+    root = scale.write_dataset(tmp_path / "d", plants=3, frames=2, T=8)
+    r = scale.run_stage("fit_paper", root, T=8)
+    assert r["slots"] >= 1 and r["dropped_share"] == 0.0 and r["cpu_seconds"] > 0
+    assert {"within_sequence", "cross_sequence", "tree_space", "forecast_calibration"} <= set(r["parts"])
 
 
 def test_benchmark_in_fresh_processes_and_table(tmp_path, capsys, monkeypatch):

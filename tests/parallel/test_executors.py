@@ -56,6 +56,26 @@ def test_run_tasks_order_errors_and_callbacks():
     assert seen == [0, 1, 0, 1]
 
 
+class Scattering(InlineExecutor):
+    """An inline executor with a ``scatter`` method (as Dask's), recording what it was given."""
+
+    def __init__(self) -> None:
+        self.scattered: list[bytes] = []
+
+    def scatter(self, data: bytes) -> bytes:
+        self.scattered.append(data)
+        return data
+
+
+def test_a_shared_argument_is_packed_once_and_sent_once():
+    assert run_tasks(pow, [(2,), (3,)], shared=10) == [100, 1000]
+    with Scattering() as ex:
+        assert run_tasks(pow, [(2,), (3,), (4,)], ex, shared=10) == [100, 1000, 10000]
+        assert len(ex.scattered) == 1
+    with InlineExecutor() as ex:  # no scatter: the packed bytes travel with each task
+        assert run_tasks(pow, [(2,), (3,)], ex, shared=10) == [100, 1000]
+
+
 def test_move_rebuilds_containers():
     x = {"a": [torch.zeros(2, dtype=torch.float64)], "b": (1, "s")}
     y = move(x, "cpu")

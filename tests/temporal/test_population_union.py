@@ -1,4 +1,6 @@
-"""Population's union layout (issue 13): a branch the reference lacks opens one slot that later plants share."""
+"""Population's union layout: a branch the reference lacks opens one slot that later plants share; ``max_slots``
+bounds the layout and the registrations onto it, reports the dropped share of the training norm, and leaves a
+population under the bound unchanged."""
 
 from __future__ import annotations
 
@@ -7,7 +9,9 @@ import pytest
 import torch
 
 from torch4dtree.settings import CrossSettings
-from torch4dtree.temporal.population import Population
+from torch4dtree.temporal.population import SLOT_SLACK, Population
+from torch4dtree.temporal.spatiotemporal import bounded_slots
+from torch4dtree.trees.aligned import slot_weights
 from torch4dtree.trees.structures import Trees, TreeSequence
 
 T = 32
@@ -73,3 +77,74 @@ def test_union_does_not_depend_on_input_order(fitted):
     assert rev.report_["reference"] == pop.report_["reference"] and rev.report_["slots"] == pop.report_["slots"]
     assert torch.allclose(rev.ref_points, pop.ref_points)
     assert torch.allclose(rev.trajectories.flip(0), pop.trajectories, atol=1e-8)
+
+
+def _plants() -> list[TreeSequence]:
+    # stem, two shared leaves, an extra leaf X (plants a, b) or Y (c, d): 5 slots unbounded
+    return [_plant("a", "X", 1.0, 0.0), _plant("b", "X", 1.05, 0.5), _plant("c", "Y", 0.97, -0.4),
+            _plant("d", "Y", 1.02, 0.3)]
+
+
+def _fit(max_slots: int | None) -> Population:
+    return Population(cross=CrossSettings(positions="warped"), max_slots=max_slots).fit(_plants())
+
+
+@pytest.fixture(scope="module")
+def unbounded() -> Population:
+    return _fit(None)
+
+
+def test_under_the_bound_the_population_is_unchanged(unbounded):
+    assert unbounded.report_["slots"] == 5
+    bounded = _fit(5)
+    assert bounded.report_["dropped_share"] == 0.0 and bounded.report_["slots_opened"] == 5
+    mine, theirs = bounded.state_dict(), unbounded.state_dict()
+    for name, value in theirs.items():
+        if isinstance(value, torch.Tensor):
+            assert torch.equal(mine[name], value), name
+    assert torch.equal(bounded.layout_.q, unbounded.layout_.q)
+
+
+def _slot_masses(pop: Population) -> torch.Tensor:
+    layout = pop.layout_
+    w = slot_weights(layout.slot_depth, pop.lambdas_)[0].to(layout.q)
+    return (layout.q.square().sum((-1, -2)) * layout.present).sum(0) / layout.q.shape[2] * w
+
+
+@pytest.mark.parametrize("max_slots", [4, 3])
+def test_max_slots_bounds_the_layout_and_reports_the_dropped_share(unbounded, max_slots):
+    pop = _fit(max_slots)
+    rep = pop.report_
+    assert rep["slots"] == max_slots and rep["slots_opened"] == 5 and rep["max_slots"] == max_slots
+    assert pop.reference_tree().points.shape[0] == max_slots == pop.pca.num_slots
+    # the slots kept are the ones carrying the most norm: the dropped share is the rest of the unbounded layout's
+    mass = _slot_masses(unbounded)
+    kept = bounded_slots(mass.tolist(), unbounded.layout_.slot_parent.tolist(), max_slots)
+    expected = 1 - float(mass[kept].sum() / mass.sum())
+    assert 0 < rep["dropped_share"] == pytest.approx(expected, rel=1e-6)
+    # a new plant is written in the bounded layout; its branches in dropped slots are reported
+    enc = pop.transform(_plant("e", "X", 0.99, 0.1))
+    assert enc.aligned.num_slots == max_slots and torch.isfinite(enc.trajectory).all()
+
+
+def test_the_registrations_onto_the_union_stay_bounded(monkeypatch):
+    sizes = []
+    original = Population._register_cross
+
+    def spy(self, trees, reference, lam):
+        sizes.append(reference.points.shape[0])
+        return original(self, trees, reference, lam)
+
+    monkeypatch.setattr(Population, "_register_cross", spy)
+    pop = _fit(2)  # the union passes 2 x 2 slots and is cut back to 2 while it grows
+    assert pop.report_["slots"] == 2 and pop.report_["dropped_share"] > 0
+    assert sizes and max(sizes) <= SLOT_SLACK * 2
+
+
+def test_bounded_slots_keeps_parents():
+    parent = [-1, 0, 1, 1, 0, 4]
+    mass = [1.0, 0.1, 5.0, 0.2, 0.3, 0.4]
+    for k in range(1, 7):
+        kept = bounded_slots(mass, parent, k)
+        assert len(kept) == k and all(parent[u] in kept for u in kept if parent[u] >= 0)
+    assert bounded_slots(mass, parent, 3) == [0, 1, 2]

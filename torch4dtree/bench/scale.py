@@ -98,7 +98,7 @@ def _pairs(seqs: list, T: int, workers: int) -> int:
 
 
 def run_stage(stage: str, root: Path, T: int = DEFAULT_T, workers: int = 1) -> dict[str, Any]:
-    """Run one stage in this process: ``{"seconds", "peak_mb", "base_mb", "children_peak_mb", ...}``.
+    """Run one stage in this process: ``{"seconds", "cpu_seconds", "peak_mb", "base_mb", "children_peak_mb", ...}``.
 
     ``base_mb`` is the peak resident memory after the imports and (for the fits and all-pairs) after reading the
     dataset, before the stage: ``peak_mb - base_mb`` is what the stage itself adds. Call it in a fresh process
@@ -123,6 +123,7 @@ def run_stage(stage: str, root: Path, T: int = DEFAULT_T, workers: int = 1) -> d
     seqs = [] if stage == "read" else _read(root, T)
     cfg = _config(T)
     base = _peak_mb(resource.RUSAGE_SELF)
+    cpu0 = _cpu_seconds(resource.RUSAGE_SELF) + _cpu_seconds(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     out: dict[str, Any] = {}
     if stage == "read":
@@ -130,11 +131,14 @@ def run_stage(stage: str, root: Path, T: int = DEFAULT_T, workers: int = 1) -> d
     elif stage == "fit_organs":
         OrganModel(cfg.organ_settings()).fit(seqs)
     elif stage == "fit_paper":
-        FourDTreeModel(cfg.model_settings()).fit(seqs, progress=False)
+        report = FourDTreeModel(cfg.model_settings()).fit(seqs, progress=False).report_
+        out.update(slots=report["population"]["slots"], dropped_share=report["population"].get("dropped_share", 0.0),
+                   parts=report["seconds"])
     else:
         out["pairs"] = _pairs(seqs, T, workers)
-    out.update(seconds=time.perf_counter() - t0, peak_mb=_peak_mb(resource.RUSAGE_SELF), base_mb=base,
-               children_peak_mb=_peak_mb(resource.RUSAGE_CHILDREN), plants=len(seqs),
+    cpu = _cpu_seconds(resource.RUSAGE_SELF) + _cpu_seconds(resource.RUSAGE_CHILDREN) - cpu0
+    out.update(seconds=time.perf_counter() - t0, cpu_seconds=cpu, peak_mb=_peak_mb(resource.RUSAGE_SELF),
+               base_mb=base, children_peak_mb=_peak_mb(resource.RUSAGE_CHILDREN), plants=len(seqs),
                frames=sum(s.frames.num_trees for s in seqs), workers=workers)
     return out
 
@@ -142,6 +146,12 @@ def run_stage(stage: str, root: Path, T: int = DEFAULT_T, workers: int = 1) -> d
 def _peak_mb(who: int) -> float:
     """Peak resident memory (MB) of this process or of its finished children (Linux reports KiB)."""
     return resource.getrusage(who).ru_maxrss / 1024.0
+
+
+def _cpu_seconds(who: int) -> float:
+    """User + system CPU seconds of this process or of its finished children (robust to a loaded machine)."""
+    r = resource.getrusage(who)
+    return r.ru_utime + r.ru_stime
 
 
 def _subprocess_stage(stage: str, root: Path, T: int, workers: int) -> dict[str, Any]:
@@ -178,9 +188,11 @@ def benchmark_scale(sizes: Sequence[int] = DEFAULT_SIZES, frames: int = DEFAULT_
                     log: Callable[[str], None] | None = None, keep: Path | None = None) -> dict[str, Any]:
     """Every stage at every size, each in a fresh process; returns ``{"rows", "exponents", "speedup", ...}``.
 
-    ``rows``: one dict per (stage, size, workers) with ``seconds``, ``peak_mb``, ``base_mb``, ``children_peak_mb``.
-    ``exponents[name] = {"seconds": slope, "peak_mb": slope, "stage_mb": slope}`` (log-log, over ``sizes``;
-    ``stage_mb`` is ``peak_mb - base_mb``), with ``name`` the stage (``pairs_wN`` for all-pairs on N workers).
+    ``rows``: one dict per (stage, size, workers) with ``seconds``, ``cpu_seconds``, ``peak_mb``, ``base_mb``,
+    ``children_peak_mb`` (the paper model's fit also ``slots``, ``dropped_share`` and its ``parts``' seconds).
+    ``exponents[name] = {"seconds": slope, "cpu_seconds": slope, "peak_mb": slope, "stage_mb": slope}`` (log-log,
+    over ``sizes``; ``stage_mb`` is ``peak_mb - base_mb``), with ``name`` the stage (``pairs_wN`` for all-pairs on N
+    workers).
     ``speedup[size]``: all-pairs seconds on ``min(workers)`` over seconds on ``max(workers)``. ``keep``: write the
     datasets there (default: a temporary folder, removed).
 
@@ -200,7 +212,8 @@ def benchmark_scale(sizes: Sequence[int] = DEFAULT_SIZES, frames: int = DEFAULT_
                     name = f"pairs_w{w}" if stage == "pairs" else stage
                     r = {"stage": name, "size": n, **_subprocess_stage(stage, root, T, w)}
                     rows.append(r)
-                    say(f"{name} {n} plants: {r['seconds']:.2f} s, peak {r['peak_mb']:.0f} MB "
+                    say(f"{name} {n} plants: {r['seconds']:.2f} s ({r['cpu_seconds']:.2f} CPU s), "
+                        f"peak {r['peak_mb']:.0f} MB "
                         f"(+{r['peak_mb'] - r['base_mb']:.0f} MB over {r['base_mb']:.0f})")
     names = list(dict.fromkeys(r["stage"] for r in rows))
     exponents = {}
@@ -208,6 +221,7 @@ def benchmark_scale(sizes: Sequence[int] = DEFAULT_SIZES, frames: int = DEFAULT_
         mine = [r for r in rows if r["stage"] == name]
         ns = [r["size"] for r in mine]
         exponents[name] = {"seconds": growth_exponent(ns, [r["seconds"] for r in mine]),
+                           "cpu_seconds": growth_exponent(ns, [r.get("cpu_seconds", 0.0) for r in mine]),
                            "peak_mb": growth_exponent(ns, [r["peak_mb"] for r in mine]),
                            "stage_mb": growth_exponent(ns, [r["peak_mb"] - r["base_mb"] for r in mine])}
     speedup = {}
@@ -236,14 +250,15 @@ def format_table(result: dict[str, Any]) -> str:
              f"{'stage':>11} {'':>8} " + " ".join(f"{n:>9}" for n in sizes) + f" {'exponent':>9}"]
     for name in names:
         ex = result["exponents"][name]
-        for key, label, fmt in (("seconds", "s", "{:9.2f}"), ("peak_mb", "peak MB", "{:9.0f}"),
+        for key, label, fmt in (("seconds", "s", "{:9.2f}"), ("cpu_seconds", "CPU s", "{:9.2f}"),
+                                ("peak_mb", "peak MB", "{:9.0f}"),
                                 ("stage_mb", "+MB", "{:9.0f}")):
             vals = []
             for n in sizes:
                 r = cell.get((name, n))
-                v = None if r is None else (r["peak_mb"] - r["base_mb"] if key == "stage_mb" else r[key])
+                v = None if r is None else (r["peak_mb"] - r["base_mb"] if key == "stage_mb" else r.get(key))
                 vals.append(" " * 9 if v is None else fmt.format(v))
-            e = ex[key]
+            e = ex.get(key)
             lines.append(f"{name if key == 'seconds' else '':>11} {label:>8} " + " ".join(vals)
                          + (f" {e:9.2f}" if e is not None else f" {'-':>9}"))
     if result["speedup"]:

@@ -54,7 +54,8 @@ FORECAST_SHRINK = (0.0, 0.25, 0.5, 0.75, 1.0)
 # training plant at that age, in units of the median squared distance between training plants (1e6: equal weights);
 # narrower widths put all weight on one plant (docs/experiments.md)
 FORECAST_WIDTHS = (0.2, 0.5, 1.0, 2.0, 1e6)
-# plants a task of encode_many: each task ships the fitted model once, so a few plants amortise it
+# plants a task of encode_many: an executor without scatter ships the fitted model with each task, so a few plants
+# amortise it
 ENCODE_CHUNK = 8
 
 
@@ -107,7 +108,8 @@ class FourDTreeModel(nn.Module):
 
     Args:
         settings: the tree space (:class:`~torch4dtree.temporal.population.Population`: ``lambdas``, ``rotation``,
-            ``n_t``, ``tree_components`` / ``tree_variance``, ``medoid_candidates``, ``registration``, ``cross``),
+            ``n_t``, ``tree_components`` / ``tree_variance``, ``medoid_candidates``, ``registration``, ``cross``,
+            ``max_slots``),
             the 4D Karcher mean (``mean_iters``, ``temporal``), the trajectory PCA (``modes`` / ``mode_variance``)
             and the sampler's bound ``c``; default :class:`~torch4dtree.settings.ModelSettings`'s.
 
@@ -130,7 +132,7 @@ class FourDTreeModel(nn.Module):
             raise TypeError(f"settings must be a ModelSettings, got {type(settings).__name__}")
         self.settings = s = settings or ModelSettings()
         self.population = Population(s.lambdas, s.rotation, s.n_t, s.tree_components, s.tree_variance,
-                                     s.medoid_candidates, s.registration, s.cross)
+                                     s.medoid_candidates, s.registration, s.cross, s.max_slots)
         self.mean = TrajectoryMean(s.mean_iters, registration=s.temporal)
         self.pca = TrajectoryPCA(s.modes, s.mode_variance)
         self.sampler = TruncatedNormalSampler(1, s.c)
@@ -408,7 +410,8 @@ class FourDTreeModel(nn.Module):
 
     def encode_many(self, sequences: Sequence[TreeSequence], executor: Executor | None = None) -> Tensor:
         """``(N, m)``: :meth:`encode` of every 4D tree of ``sequences``; on ``executor`` in tasks of
-        ``ENCODE_CHUNK`` plants, each shipping :meth:`portable` (the same numbers as :meth:`encode`).
+        ``ENCODE_CHUNK`` plants, :meth:`portable` packed once and unpacked once per worker (sent once to each
+        worker on Dask; :func:`~torch4dtree.parallel.run_tasks`' ``shared``); the same numbers as :meth:`encode`.
 
         Example:
             >>> from torch4dtree.data import synthetic_plant
@@ -422,9 +425,9 @@ class FourDTreeModel(nn.Module):
         if executor is None:
             rows = [self.encode(s) for s in seqs]
         else:
-            lean = self.portable()
-            chunks = [(lean, seqs[i:i + ENCODE_CHUNK]) for i in range(0, len(seqs), ENCODE_CHUNK)]
-            rows = [z for part in run_tasks(encode_sequences, chunks, executor, self.duration.device) for z in part]
+            chunks = [(seqs[i:i + ENCODE_CHUNK],) for i in range(0, len(seqs), ENCODE_CHUNK)]
+            rows = [z for part in run_tasks(encode_sequences, chunks, executor, self.duration.device,
+                                            shared=self.portable()) for z in part]
         return torch.stack(rows) if rows else self.duration.new_zeros(0, self.pca.n_modes)
 
     def score(self, sequence: TreeSequence) -> Score:

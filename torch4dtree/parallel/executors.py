@@ -89,6 +89,11 @@ class DaskExecutor(Executor):
     def submit(self, fn: Callable[..., Any], /, *args: Any, **kwargs: Any) -> Future:  # noqa: ANN401
         return self._executor.submit(fn, *args, **kwargs)
 
+    def scatter(self, data: Any) -> Any:  # noqa: ANN401 - any picklable value; a distributed.Future
+        """``data`` sent once to every worker (``Client.scatter``, broadcast); the returned future, passed to
+        :meth:`submit` in place of ``data``, is ``data`` in the task (a fitted model many tasks need travels once)."""
+        return self.client.scatter(data, broadcast=True, hash=False)
+
     def shutdown(self, wait: bool = True, *, cancel_futures: bool = False) -> None:
         self._executor.shutdown(wait=wait and not cancel_futures)
         self.client.close()

@@ -7,6 +7,7 @@ NamedTuples, lists, tuples and dicts of them. Without an executor the tasks run 
 
 from __future__ import annotations
 
+import hashlib
 import pickle
 from collections.abc import Callable, Iterable
 from concurrent.futures import FIRST_COMPLETED, Executor, Future, wait
@@ -16,7 +17,7 @@ import torch
 
 from .executors import check_executor
 
-__all__ = ["IN_FLIGHT", "move", "pack", "run_packed", "run_tasks", "unpack"]
+__all__ = ["IN_FLIGHT", "move", "pack", "run_packed", "run_shared", "run_tasks", "unpack"]
 
 # tasks submitted ahead of the finished ones: every worker stays busy while the driver holds a bounded number of
 # shipped arguments and results
@@ -79,10 +80,26 @@ def run_packed(data: bytes) -> bytes:
     return pack(fn(*args))
 
 
+# the shared argument a worker process unpacked last (run_shared): (digest of its bytes, the object)
+_SHARED: dict[str, Any] = {}
+
+
+def run_shared(shared: bytes, data: bytes) -> bytes:
+    """Worker side of a task with a shared first argument: ``fn(obj, *args)``, ``obj`` unpacked from ``shared``
+    once per worker process (kept by the digest of its bytes; one object at a time), its result packed."""
+    key = hashlib.blake2b(shared, digest_size=16).hexdigest()
+    if key not in _SHARED:
+        _SHARED.clear()
+        _SHARED[key] = unpack(shared)
+    fn, args = unpack(data)
+    return pack(fn(_SHARED[key], *args))
+
+
 def run_tasks(fn: Callable[..., Any], tasks: Iterable[tuple], executor: Executor | None = None,
               device: torch.device | str | None = None,
-              done: Callable[[int, Any], None] | None = None, keep: bool = True) -> list[Any]:
-    """``[fn(*task) for task in tasks]``, on ``executor`` if given (``fn`` top-level, so it pickles).
+              done: Callable[[int, Any], None] | None = None, keep: bool = True, shared: Any = None) -> list[Any]:
+    """``[fn(*task) for task in tasks]``, on ``executor`` if given (``fn`` top-level, so it pickles); with
+    ``shared``, ``[fn(shared, *task) ...]``.
 
     Each task's function and arguments are shipped as bytes (:func:`pack`: tensors on the CPU) and its result moved
     to ``device`` (default: the CPU) on return;
@@ -90,7 +107,9 @@ def run_tasks(fn: Callable[..., Any], tasks: Iterable[tuple], executor: Executor
     on the driver as each task finishes (the finished ones in submission order; each before the next task is
     submitted), e.g. for progress or to save it. ``keep=False``: results are dropped after ``done`` (an empty list
     is returned; memory stays bounded). Inline (``executor=None``) the tasks run in order on the arguments as
-    given. A task's error is raised here.
+    given. A task's error is raised here. ``shared`` (e.g. a fitted model every task needs) is packed once; an
+    executor with a ``scatter`` method (:class:`~torch4dtree.parallel.DaskExecutor`) sends it to every worker once
+    and the tasks refer to it, others ship its bytes with each task; a worker unpacks it once.
 
     Example:
         >>> run_tasks(divmod, [(7, 2), (9, 4)])
@@ -107,10 +126,20 @@ def run_tasks(fn: Callable[..., Any], tasks: Iterable[tuple], executor: Executor
 
     if executor is None:
         for i, task in enumerate(tasks):
-            finish(i, fn(*task))
+            finish(i, fn(*task) if shared is None else fn(shared, *task))
         return [out[i] for i in range(len(out))]
     target = torch.device(device) if device is not None else torch.device("cpu")
     pending: dict[Future, int] = {}
+    common: Any = None
+    if shared is not None:
+        common = pack(shared)
+        scatter = getattr(executor, "scatter", None)
+        common = scatter(common) if callable(scatter) else common
+
+    def submit(task: tuple) -> Future:
+        if shared is None:
+            return executor.submit(run_packed, pack((fn, task)))
+        return executor.submit(run_shared, common, pack((fn, task)))
 
     def collect(finished: Iterable[Future]) -> None:
         for future in sorted(finished, key=pending.__getitem__):  # in submission order among the finished
@@ -121,7 +150,7 @@ def run_tasks(fn: Callable[..., Any], tasks: Iterable[tuple], executor: Executor
         for i, task in enumerate(tasks):  # every finished task is stored before the next is submitted
             if len(pending) >= IN_FLIGHT:
                 collect(wait(list(pending), return_when=FIRST_COMPLETED)[0])
-            pending[executor.submit(run_packed, pack((fn, task)))] = i
+            pending[submit(task)] = i
             collect([f for f in pending if f.done()])
         while pending:
             collect(wait(list(pending), return_when=FIRST_COMPLETED)[0])

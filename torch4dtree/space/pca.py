@@ -26,6 +26,8 @@ __all__ = ["TreePCA", "feature_blocks", "gram_axes"]
 
 # decode drops branches shorter than this fraction of the mean's main branch (see TreePCA.decode)
 DECODE_MIN_FRACTION = 0.01
+# decode measures its trees' slot lengths on this many feature values at a time (float64: 32 MB)
+DECODE_CHUNK_VALUES = 1 << 22
 # the Gram path (gram_axes) keeps components whose singular value is at least this share of the largest: its
 # components then agree with the SVD's to about eps / GRAM_MIN_SHARE^2 (1e-10); a smaller kept one takes the SVD
 GRAM_MIN_SHARE = 1e-3
@@ -120,9 +122,6 @@ class _SlotTables(NamedTuple):
 
     mean_q: Tensor  # (S, M*d)
     comp_q: Tensor  # (S, k, M*d)
-    gram: Tensor  # (S, k, k) comp_q[j] comp_q[j]^T
-    lin: Tensor  # (S, k) comp_q[j] mean_q[j]
-    mean_sq: Tensor  # (S,) |mean_q[j]|^2
     mean_norm: Tensor  # (S,) |mean_q[j]|
     comp_norm: Tensor  # (S,) Frobenius norm of comp_q[j]
     w_s: Tensor  # (S,) metric weight of each slot's s
@@ -292,8 +291,9 @@ class TreePCA(FittedModule):
         ``DECODE_MIN_FRACTION`` of the mean's main-branch length) and its parent slot is present; children
         start on their parent's curve. The result is ``inverse_transform(coeffs).to_trees(min_length)``
         (:meth:`AlignedTrees.to_trees`), computed without the SRVFs of the slots that are too short: every
-        slot's length is a quadratic form in the coefficients, so only the (typically a third) long enough
-        slots are decoded to SRVFs and integrated. Differentiable in ``coeffs`` like ``to_trees``.
+        slot's length is measured on the features first (a chunk of trees at a time, :meth:`_long_slots`), so only
+        the (typically a third) long enough slots are decoded to SRVFs and integrated. Differentiable in ``coeffs``
+        like ``to_trees``.
         """
         self._check_fitted()
         k = self.n_components_
@@ -306,13 +306,7 @@ class TreePCA(FittedModule):
         n, S, M, d = c.shape[0], self.num_slots, self.M, self.d
         MD = M * d
         tab = self._slot_tables()
-        # squared length ||q_j||^2 = sum |q|^2 / M of every (tree, slot), a quadratic form in c: (n, S)
-        cg = (c @ tab.gram.transpose(0, 1).reshape(k, S * k)).reshape(n, S, k)  # c^T gram_j for every slot j
-        sq = tab.mean_sq + 2 * c @ tab.lin.T + (cg * c[:, None]).sum(-1)
-        # a slot within rounding of min_length is decoded and measured exactly (the quadratic form cancels)
-        bound = (tab.mean_norm + c.norm(dim=-1, keepdim=True) * tab.comp_norm).square()
-        margin = 4 * (MD + k * k) * torch.finfo(c.dtype).eps * bound
-        candidate = ((sq + margin) / M).detach() > min_length
+        candidate = self._long_slots(c.detach(), tab, min_length)
         candidate[:, 0] = True  # the main branch is always kept
         # SRVFs of the candidate slots only (rows grouped by slot)
         slot, tree = candidate.T.nonzero().unbind(1)
@@ -322,6 +316,24 @@ class TreePCA(FittedModule):
             s[:, 1:] = (self.mean[S * MD:] + c @ self.components[:, S * MD:]) / tab.w_s[1:].sqrt()
         root = self.mean_root.expand(n, d)
         return rows_to_trees(rows, tree * S + slot, s, root, self.slot_parent, min_length)
+
+    def _long_slots(self, c: Tensor, tab: _SlotTables, min_length: float) -> Tensor:
+        """``(n, S)``: the slots of the trees ``c (n, k)`` whose decoded squared length ``||q_j||^2 = sum |q|^2 / M``
+        may exceed ``min_length`` (within a rounding margin: those are decoded and measured exactly). The features
+        of ``DECODE_CHUNK_VALUES / F`` trees at a time: memory of one chunk, time ``n k F``, whatever ``k``."""
+        S, M, MD = self.num_slots, self.M, self.M * self.d
+        comps = self.components[:, : S * MD].to(c.dtype)
+        mean = self.mean[: S * MD].to(c.dtype)
+        scale = 1 / slot_weights(self.slot_depth, self.lambdas)[0].to(c)  # feature units (q sqrt(w / M)) -> |q|^2 / M
+        bound = (tab.mean_norm + c.norm(dim=-1, keepdim=True) * tab.comp_norm).square()
+        margin = 4 * (MD + c.shape[1] ** 2) * torch.finfo(c.dtype).eps * bound
+        out = torch.empty(c.shape[0], S, dtype=torch.bool, device=c.device)
+        step = max(1, DECODE_CHUNK_VALUES // max(S * MD, 1))
+        for a in range(0, c.shape[0], step):
+            f = torch.addmm(mean, c[a:a + step], comps).reshape(-1, S, MD)
+            sq = f.square().sum(-1) * scale
+            out[a:a + step] = (sq + margin[a:a + step] / M) > min_length
+        return out
 
     def _slot_tables(self) -> _SlotTables:
         """:class:`_SlotTables` of the fit, kept until the fitted buffers change (another tensor, or one modified in
@@ -338,8 +350,7 @@ class TreePCA(FittedModule):
             unit = (w_q / M).sqrt()[:, None]
             mean_q = self.mean[: S * MD].reshape(S, MD) / unit
             comp_q = (self.components[:, : S * MD].reshape(k, S, MD) / unit).transpose(0, 1).contiguous()
-            tables = _SlotTables(mean_q, comp_q, comp_q @ comp_q.transpose(1, 2), (comp_q @ mean_q[:, :, None])[..., 0],
-                                 mean_q.square().sum(-1), mean_q.norm(dim=-1), comp_q.norm(dim=(1, 2)), w_s)
+            tables = _SlotTables(mean_q, comp_q, mean_q.norm(dim=-1), comp_q.norm(dim=(1, 2)), w_s)
         self._tables = (key, sources, tables)  # the sources are held so that their ids stay theirs
         return tables
 

@@ -10,7 +10,7 @@
    representatives at evenly spaced ranks of total length, ties by name; the one with the smallest sum of
    squared registered distances of all representatives onto it wins);
 3. **cross-sequence registration** onto a growing **union representative** and the **union layout** of all frames
-   (:func:`combine_many`). The union representative starts as the reference's; the other representatives are
+   (:func:`place_targets`). The union representative starts as the reference's; the other representatives are
    registered onto it one by one, in the order of their registered distance to the reference (ties by name, so the
    result does not depend on the input order): a branch matched to a union slot goes there, also to a slot an
    earlier plant opened, and an unmatched one opens a slot whose branch joins the union representative
@@ -18,7 +18,10 @@
    per plant. These registrations use the cross-sequence settings (:class:`~torch4dtree.settings.CrossSettings`:
    node ranks, lp 12 relative, organs kept in their order along the parent by default); the layout keeps the
    space's metric. Until a slot is opened, the batched registrations onto the reference are reused; the later
-   ones are one call per plant;
+   ones are one call per plant. The layout keeps at most ``max_slots`` slots: each slot carries the squared
+   weighted length of the training branches placed in it, and when the union has grown past ``SLOT_SLACK``
+   times the bound (and once at the end) only the ``max_slots`` slots carrying the most are kept, closed under
+   parents (:func:`bounded_slots`); branches in dropped slots leave the layout (their share is reported);
 4. a :class:`TreePCA` on all frames, and each 4D tree's **trajectory** ``(n_t, k)`` on the normalised time grid
    ``linspace(0, 1, n_t)`` between its first and last frame (its ``time_spans`` give data units back).
 
@@ -41,6 +44,7 @@ from torch import Tensor
 
 from ..parallel import move, run_tasks
 from ..settings import (
+    DEFAULT_MAX_SLOTS,
     DEFAULT_NT,
     ROTATIONS,
     CrossSettings,
@@ -55,16 +59,24 @@ from ..trees.aligned import AlignedTrees, slot_weights
 from ..trees.registration import RELATIVE_LP_SCALE, TreeRegistration
 from ..trees.structures import Trees, TreeSequence
 from .spatiotemporal import (
-    combine_many,
+    bounded_slots,
     grow_union,
     open_slots,
     place_sequence,
+    place_targets,
     representative_tree,
+    slot_masses,
+    union_subset,
 )
 from .trajectory import resample_trajectory
 from .within import AlignedSequence, register_sequence
 
-__all__ = ["Population", "SequenceEncoding", "cross_registration", "fit_population", "transform_sequence"]
+__all__ = ["Population", "SequenceEncoding", "UnionLayout", "cross_registration", "fit_population",
+           "transform_sequence"]
+
+# the union layout grows to this many times max_slots before it is cut back to max_slots: a slot a plant opens
+# gathers the norm of the plants after it before it is ranked (the registrations' cost stays bounded by it)
+SLOT_SLACK = 2
 
 
 class SequenceEncoding(NamedTuple):
@@ -81,6 +93,27 @@ class SequenceEncoding(NamedTuple):
     times: Tensor
     aligned: AlignedTrees
     dropped_sq_norm: Tensor
+
+
+class UnionLayout(NamedTuple):
+    """The union layout of :meth:`Population.fit` (``N`` plants, ``S`` slots).
+
+    * ``movs``: the moving plants in union order; ``union``: the union representative (one tree, ``S`` branches).
+    * ``regs``: each plant's registration onto the union representative as it was at its turn.
+    * ``targets``: per plant (the reference first, then ``movs``), the layout slot of each of its slots (``-1``:
+      dropped by the bound).
+    * ``slot_parent``, ``slot_depth``: the layout (``S`` each); ``opened``: slots opened in all (before the bound).
+    * ``dropped_share``: share of the training frames' squared weighted length in the dropped slots.
+    """
+
+    movs: list[int]
+    union: Trees
+    regs: list[Any]
+    targets: list[list[int]]
+    slot_parent: list[int]
+    slot_depth: list[int]
+    opened: int
+    dropped_share: float
 
 
 def cross_registration(trees: Trees, reference: Trees, lam: tuple[float, float, float], rotation: str,
@@ -114,6 +147,10 @@ class Population(FittedModule):
             ``lp`` (``None``: ``lambdas[2]``; the space's metric keeps ``lambdas``) and ``order_tol``, as in
             :func:`~torch4dtree.temporal.register4d` (its ``fallback_rotation`` is register4d's only). Within a
             sequence, :func:`register_sequence` keeps its own.
+        max_slots: the union layout's slot bound (``None``: unbounded): the slots carrying the most of the training
+            frames' squared weighted length are kept, the rarest dropped (module doc, step 3; the dropped share is
+            ``report_["dropped_share"]``). It bounds the features (``frames x slots``) and the registrations onto
+            the union representative whatever the number of plants.
 
     Fitted buffers: ``ref_points (S, T, d)``, ``ref_parent (S,)``, ``ref_s (S,)`` (the union representative,
     module doc step 3: one branch per layout slot, in slot order), ``trajectories (N, n_t, k)``,
@@ -133,9 +170,11 @@ class Population(FittedModule):
 
     def __init__(self, lambdas: Sequence[float] = (1.0, 1.0, 1.0), rotation: str = "none", n_t: int = DEFAULT_NT,
                  n_components: int | None = None, variance: float = 0.99, medoid_candidates: int = 3,
-                 registration: RegistrationSettings | None = None, cross: CrossSettings | None = None) -> None:
+                 registration: RegistrationSettings | None = None, cross: CrossSettings | None = None,
+                 max_slots: int | None = DEFAULT_MAX_SLOTS) -> None:
         super().__init__()
         check_choice("rotation", rotation, ROTATIONS)
+        self.max_slots = None if max_slots is None else check_at_least("max_slots", max_slots, 1)
         self.lambdas = check_lambdas(lambdas)
         self.rotation, self.n_t = rotation, check_at_least("n_t", n_t, 2)
         self.medoid_candidates = check_at_least("medoid_candidates", medoid_candidates, 1)
@@ -162,7 +201,7 @@ class Population(FittedModule):
                 "medoid_candidates": self.medoid_candidates, "registration": self.registration.to_dict(),
                 "lambdas_": list(self.lambdas_), "names": list(self.names_), "report": self.report_,
                 "positions": self.cross.positions, "cross_lp": self.cross.lp, "cross_order_tol": self.cross.order_tol,
-                "cross_lambdas_": list(self.cross_lambdas_)}
+                "cross_lambdas_": list(self.cross_lambdas_), "max_slots": self.max_slots}
 
     def set_extra_state(self, state: dict[str, Any]) -> None:
         if not isinstance(state, dict) or state.get("version") != 1:
@@ -176,6 +215,7 @@ class Population(FittedModule):
                                    state.get("cross_order_tol"), self.cross.fallback_rotation)
         self.cross_lambdas_ = check_lambdas(state.get("cross_lambdas_", state["lambdas_"]))
         self.names_, self.report_ = list(state["names"]), dict(state["report"])
+        self.max_slots = state.get("max_slots")  # a state without it was fitted unbounded
 
     @property
     def is_fitted(self) -> bool:
@@ -239,12 +279,13 @@ class Population(FittedModule):
         reps = [representative_tree(a) for a in aseqs]
         names = [s.name or f"plant_{i}" for i, s in enumerate(seqs)]
         ref, regs = self._medoid(reps, names, self.cross_lambdas_, progress, executor)
-        movs, union, regs = self._union(aseqs, reps, names, ref, regs, self.cross_lambdas_, progress)
+        movs, union, regs, targets, slot_parent, slot_depth, opened, dropped = self._union(
+            aseqs, reps, names, ref, regs, self.cross_lambdas_, lam, progress)
         seconds["cross_sequence"] = time.perf_counter() - t0
         t0 = time.perf_counter()
-        layout = combine_many(aseqs[ref], [aseqs[i] for i in movs], [regs[i].matches for i in movs],
-                              [regs[i].gamma.to(torch.float64) for i in movs],
-                              [regs[i].rotation.to(torch.float64) for i in movs], lam)
+        layout = place_targets(aseqs[ref], targets[0], [aseqs[i] for i in movs], targets[1:], slot_parent,
+                               slot_depth, [regs[i].gamma.to(torch.float64) for i in movs],
+                               [regs[i].rotation.to(torch.float64) for i in movs], lam)
         order = [ref] + movs
         counts = [len(aseqs[i]) for i in order]
         coeffs = self.pca.fit_transform(layout)
@@ -262,6 +303,7 @@ class Population(FittedModule):
         self.lambdas_, self.names_ = lam, names
         self.report_ = {
             "reference": names[ref], "slots": layout.num_slots, "reference_slots": reps[ref].points.shape[0],
+            "max_slots": self.max_slots, "slots_opened": opened, "dropped_share": dropped,
             "frames": int(sum(counts)), "components": self.pca.n_components_,
             "variance_explained": float(self.pca.explained_variance_ratio.sum()),
             "within_sequence_distance_mean": float(torch.cat([a.distances for a in aseqs]).mean()),
@@ -294,41 +336,78 @@ class Population(FittedModule):
         return best[2], best[3]
 
     def _union(self, aseqs: list[AlignedSequence], reps: list[Trees], names: list[str], ref: int, regs: list[Any],
-               lam: tuple[float, float, float], progress: bool) -> tuple[list[int], Trees, list[Any]]:
-        """The moving plants in union order, the union representative and each plant's registration onto it
-        (module doc, step 3).
+               lam: tuple[float, float, float], space: tuple[float, float, float], progress: bool) -> UnionLayout:
+        """The union layout (module doc, step 3): the moving plants in union order, each plant's registration onto
+        the union representative as it was at its turn, and the layout's slots, bounded by ``max_slots``.
 
         Order: registered distance to the reference, ties by name (input-order independent). A registration onto
         the reference stays valid while no plant has opened a slot, so only later plants are registered again.
+        Bound: each slot carries the training frames' squared weighted length placed in it (:func:`slot_masses`,
+        weights of the space's metric ``space``); once the union has more than ``SLOT_SLACK * max_slots`` slots it
+        keeps the ``max_slots`` that carry the most (:func:`bounded_slots`), and once more at the end, so the union
+        representative every plant is registered onto stays under ``SLOT_SLACK * max_slots`` slots.
         """
         movs = sorted((i for i in range(len(reps)) if i != ref), key=lambda i: (float(regs[i].distance), names[i]))
         union = reps[ref]
         slot_parent = aseqs[ref].aligned.slot_parent.tolist()
         slot_depth = aseqs[ref].aligned.slot_depth.tolist()
+        targets = {ref: list(range(len(slot_parent)))}
+        mass = [0.0] * len(slot_parent)
+        for t, m in slot_masses(aseqs[ref], targets[ref], slot_depth, space).items():
+            mass[t] += m
+        opened, dropped = len(slot_parent), 0.0
         regs = list(regs)
+        cap = None if self.max_slots is None else SLOT_SLACK * self.max_slots
         from tqdm.auto import tqdm
 
+        def bound(keep_at_most: int) -> None:
+            nonlocal union, slot_parent, slot_depth, mass, dropped
+            kept = bounded_slots(mass, slot_parent, keep_at_most)
+            new = [-1] * len(slot_parent)
+            for j, u in enumerate(kept):
+                new[u] = j
+            dropped += sum(m for u, m in enumerate(mass) if new[u] < 0)
+            parent = [new[slot_parent[u]] if slot_parent[u] >= 0 else -1 for u in kept]
+            union = union_subset(union, kept, parent)
+            slot_parent, slot_depth, mass = parent, [slot_depth[u] for u in kept], [mass[u] for u in kept]
+            for i in targets:
+                targets[i] = [new[t] if t >= 0 else -1 for t in targets[i]]
+
+        grown = False
         for i in tqdm(movs, disable=not progress, desc="union layout", unit="plant"):
-            if union.points.shape[0] > reps[ref].points.shape[0]:
+            if grown:
                 regs[i] = self._register_cross(reps[i], union, lam)[0]
             gamma, rot = regs[i].gamma.to(torch.float64), regs[i].rotation.to(torch.float64)
-            targets = open_slots(aseqs[i], regs[i].matches, slot_parent, slot_depth)
-            union = grow_union(union, aseqs[i], targets, slot_parent, gamma, rot)
-        return movs, union, regs
+            S_u = len(slot_parent)
+            targets[i] = open_slots(aseqs[i], regs[i].matches, slot_parent, slot_depth)
+            union = grow_union(union, aseqs[i], targets[i], slot_parent, gamma, rot)
+            grown |= len(slot_parent) > S_u
+            opened += len(slot_parent) - S_u
+            mass += [0.0] * (len(slot_parent) - S_u)
+            for t, m in slot_masses(aseqs[i], targets[i], slot_depth, space).items():
+                mass[t] += m
+            if cap is not None and len(slot_parent) > cap:
+                bound(self.max_slots)
+        if self.max_slots is not None and len(slot_parent) > self.max_slots:
+            bound(self.max_slots)
+        total = sum(mass) + dropped
+        return UnionLayout(movs, union, regs, [targets[i] for i in [ref] + movs], slot_parent, slot_depth, opened,
+                           dropped / total if total > 0 else 0.0)
 
     # ------------------------------------------------------------------------ transform
     def portable(self) -> Population:
         """A copy on the CPU holding only the fitted state (what a checkpoint holds, not the training layout):
         what is shipped to workers to write new plants in the space (:meth:`transform_many`)."""
         self._check_fitted()
-        copy = Population(cross=self.cross)
+        copy = Population(cross=self.cross, max_slots=self.max_slots)
         copy.load_state_dict(move(self.state_dict(), "cpu"))
         return copy
 
     def transform_many(self, sequences: Sequence[TreeSequence], executor: Executor | None = None
                        ) -> list[SequenceEncoding]:
-        """:meth:`transform` of every 4D tree of ``sequences``; on ``executor`` one task a plant, shipping
-        :meth:`portable` (results on this population's device, equal to :meth:`transform`'s).
+        """:meth:`transform` of every 4D tree of ``sequences``; on ``executor`` one task a plant, :meth:`portable`
+        packed once (:func:`~torch4dtree.parallel.run_tasks`' ``shared``; results on this population's device, equal
+        to :meth:`transform`'s).
 
         Example:
             >>> from torch4dtree.data import synthetic_plant
@@ -340,8 +419,8 @@ class Population(FittedModule):
         seqs = list(sequences)
         if executor is None:
             return [self.transform(s) for s in seqs]
-        lean = self.portable()
-        return run_tasks(transform_sequence, [(lean, s) for s in seqs], executor, self.ref_points.device)
+        return run_tasks(transform_sequence, [(s,) for s in seqs], executor, self.ref_points.device,
+                         shared=self.portable())
 
     def transform(self, sequence: TreeSequence, aligned: AlignedSequence | None = None) -> SequenceEncoding:
         """Write a new 4D tree into the fitted space (module doc): within-sequence registration, registration of
@@ -405,7 +484,7 @@ def fit_population(sequences: Sequence[TreeSequence], lambdas: Sequence[float] =
                    rotation: str = "none", n_t: int = DEFAULT_NT, variance: float = 0.99,
                    n_components: int | None = None, progress: bool = False, medoid_candidates: int = 3,
                    registration: RegistrationSettings | None = None, cross: CrossSettings | None = None,
-                   executor: Executor | None = None) -> Population:
+                   executor: Executor | None = None, max_slots: int | None = DEFAULT_MAX_SLOTS) -> Population:
     """``N`` 4D trees in one tree space (module doc): ``Population(...).fit(sequences)``.
 
     Example:
@@ -415,4 +494,4 @@ def fit_population(sequences: Sequence[TreeSequence], lambdas: Sequence[float] =
         torch.Size([2, 4])
     """
     return Population(lambdas, rotation, n_t, n_components, variance, medoid_candidates, registration,
-                      cross).fit(sequences, progress, executor)
+                      cross, max_slots).fit(sequences, progress, executor)

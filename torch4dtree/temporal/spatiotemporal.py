@@ -63,15 +63,16 @@ from ..settings import (
     check_lambdas,
 )
 from ..space.pca import TreePCA
-from ..trees.aligned import AlignedTrees
+from ..trees.aligned import AlignedTrees, slot_weights
 from ..trees.registration import effective_lambdas, index_order_matches
 from ..trees.structures import Trees, TreeSequence
 from .registration import TemporalRegistration, geodesic4d, trajectory_distance
 from .trajectory import fine_size, resample_trajectory, trajectory_srvf
 from .within import AlignedSequence, inverse_at, register_sequence
 
-__all__ = ["SpatiotemporalRegistration", "combine_many", "combine_sequences", "fourd_warps", "grow_union",
-           "layout_trajectories", "open_slots", "place_sequence", "register4d", "representative_tree"]
+__all__ = ["SpatiotemporalRegistration", "bounded_slots", "combine_many", "combine_sequences", "fourd_warps",
+           "grow_union", "layout_trajectories", "open_slots", "place_sequence", "place_targets", "register4d",
+           "representative_tree", "slot_masses", "union_subset"]
 
 
 
@@ -85,7 +86,8 @@ def place_sequence(mov: AlignedSequence, slot_of: Sequence[int], num_slots: int,
     """All frames of ``mov`` written into a layout of ``num_slots`` slots, ``mov`` slot ``k`` going to ``slot_of[k]``.
 
     Args:
-        slot_of: ``S_mov`` target slots (distinct; a parent's target is the parent of its child's target).
+        slot_of: ``S_mov`` target slots (distinct where ``>= 0``; a parent's target is the parent of its child's
+            target); a negative target leaves that slot out (a slot the layout dropped, :func:`bounded_slots`).
         gamma: ``(S_mov, T)`` warp of each ``mov`` slot (applied to every frame's branch in that slot).
         rotation: ``(d, d)`` applied to ``mov``'s SRVFs (row vectors, ``x @ R.T``).
 
@@ -103,19 +105,56 @@ def place_sequence(mov: AlignedSequence, slot_of: Sequence[int], num_slots: int,
     source = torch.full((n_m, num_slots), -1, dtype=torch.long, device=dev)
     g = gamma.to(device=dev, dtype=dt)
     R = rotation.to(device=dev, dtype=dt)
-    idx = torch.as_tensor(list(slot_of), dtype=torch.long, device=dev)
-    qm = warp_srvf(ma.q.reshape(n_m * S_m, M, d), g.repeat(n_m, 1)).reshape(n_m, S_m, M, d) @ R.T
-    q[:, idx] = qm * ma.present[..., None, None]
+    kept = [k for k, t in enumerate(slot_of) if t >= 0]
+    idx = torch.as_tensor([slot_of[k] for k in kept], dtype=torch.long, device=dev)
+    src = torch.as_tensor(kept, dtype=torch.long, device=dev)
+    qm = warp_srvf(ma.q[:, src].reshape(n_m * len(kept), M, d), g[src].repeat(n_m, 1)).reshape(
+        n_m, len(kept), M, d) @ R.T
+    q[:, idx] = qm * ma.present[:, src, None, None]
     # a child's parameter moves with its parent's warp
     sm = ma.s.clone()
     if S_m > 1:  # every frame's child slots at once: (n_m * (S_m - 1),) parameters through their parents' warps
         parents = torch.as_tensor(mov_parent[1:], dtype=torch.long, device=dev)
         warps = g[parents].repeat(n_m, 1)
         sm[:, 1:] = inverse_at(warps, ma.s[:, 1:].reshape(-1)).reshape(n_m, S_m - 1)
-    s[:, idx] = sm
-    present[:, idx] = ma.present
-    source[:, idx] = torch.arange(S_m, device=dev)
+    s[:, idx] = sm[:, src]
+    present[:, idx] = ma.present[:, src]
+    source[:, idx] = src
     return q, s, present, source
+
+
+def slot_masses(mov: AlignedSequence, targets: Sequence[int], slot_depth: Sequence[int],
+                lambdas: tuple[float, float, float]) -> dict[int, float]:
+    """What each of ``mov``'s slots carries of the training norm: ``{target slot: sum over frames of
+    w_q(depth) ||q||^2}`` (the squared weighted length, the ``q`` part of the features' squared norm; the warps and
+    the rotation keep it), with ``w_q`` of the target slot's depth in the layout. Negative targets are left out.
+    What :func:`bounded_slots` ranks the slots by."""
+    q = mov.aligned.q
+    per = (q.square().sum((-1, -2)) * mov.aligned.present).sum(0) / q.shape[2]  # (S_mov,)
+    depth = torch.as_tensor([slot_depth[t] for t in targets if t >= 0], dtype=torch.long)
+    w_q = slot_weights(depth, lambdas)[0].tolist()
+    mine = [(k, t) for k, t in enumerate(targets) if t >= 0]
+    return {t: w * float(per[k]) for (k, t), w in zip(mine, w_q)}
+
+
+def bounded_slots(mass: Sequence[float], slot_parent: Sequence[int], max_slots: int) -> list[int]:
+    """The ``max_slots`` slots (ascending) carrying the most of ``mass``, closed under parents: a slot ranks by the
+    largest mass in its subtree (itself or a descendant), ties by index, so a parent always ranks before its
+    children and a kept slot's parent is kept. Slots are in parents-first order (``slot_parent[u] < u``).
+
+    Example:
+        >>> bounded_slots([5.0, 1.0, 0.5, 3.0], [-1, 0, 1, 0], 3)
+        [0, 1, 3]
+        >>> bounded_slots([5.0, 0.1, 4.0], [-1, 0, 1], 2)
+        [0, 1]
+    """
+    prio = [float(m) for m in mass]
+    for u in range(len(prio) - 1, 0, -1):
+        p = slot_parent[u]
+        if p >= 0:
+            prio[p] = max(prio[p], prio[u])
+    order = sorted(range(len(prio)), key=lambda u: (-prio[u], u))
+    return sorted(order[:max_slots])
 
 
 def open_slots(mov: AlignedSequence, match: Sequence[tuple[int, int]], slot_parent: list[int],
@@ -169,6 +208,16 @@ def grow_union(union: Trees, mov: AlignedSequence, targets: Sequence[int], slot_
                  torch.arange(S, device=dev))
 
 
+def union_subset(union: Trees, kept: Sequence[int], parent: Sequence[int]) -> Trees:
+    """The one-tree union representative ``union`` (``label`` = slot) with only the slots ``kept`` (ascending,
+    closed under parents), renumbered ``0..len(kept) - 1``; ``parent``: the kept slots' parents, renumbered."""
+    dev = union.points.device
+    idx = torch.as_tensor(list(kept), dtype=torch.long, device=dev)
+    S = len(kept)
+    return Trees(union.points[idx], torch.as_tensor(list(parent), dtype=torch.long, device=dev), union.s[idx],
+                 torch.tensor([S], device=dev), torch.arange(S, device=dev))
+
+
 def combine_many(ref: AlignedSequence, movs: Sequence[AlignedSequence], matches: Sequence[Sequence[tuple[int, int]]],
                  gammas: Sequence[Tensor], rotations: Sequence[Tensor],
                  lambdas: tuple[float, float, float]) -> AlignedTrees:
@@ -193,19 +242,48 @@ def combine_many(ref: AlignedSequence, movs: Sequence[AlignedSequence], matches:
     ra = ref.aligned
     slot_parent, slot_depth = ra.slot_parent.tolist(), ra.slot_depth.tolist()
     targets = [open_slots(mov, match, slot_parent, slot_depth) for mov, match in zip(movs, matches)]
+    return place_targets(ref, list(range(ra.q.shape[1])), movs, targets, slot_parent, slot_depth, gammas, rotations,
+                         lambdas)
+
+
+def place_targets(ref: AlignedSequence, ref_targets: Sequence[int], movs: Sequence[AlignedSequence],
+                  targets: Sequence[Sequence[int]], slot_parent: Sequence[int], slot_depth: Sequence[int],
+                  gammas: Sequence[Tensor], rotations: Sequence[Tensor],
+                  lambdas: tuple[float, float, float]) -> AlignedTrees:
+    """All frames of ``ref`` then of every ``movs[i]`` in the layout ``slot_parent`` / ``slot_depth``, each sequence's
+    slot ``k`` going to its ``targets[k]`` (negative: left out, :func:`place_sequence`); ``ref`` unwarped and
+    unrotated (its own ``q`` and ``s`` exactly), the others with their ``gammas`` and ``rotations``.
+
+    Returns:
+        :class:`AlignedTrees` of ``len(ref) + sum(len(m))`` trees (``source``: the sequence's own slot). Memory:
+        the layout once, ``frames x slots x M x d`` values (filled sequence by sequence).
+    """
+    ra = ref.aligned
     S = len(slot_parent)
-    n_r, S_r = ra.q.shape[:2]
+    n_r = ra.q.shape[0]
     dev = ra.q.device
     ident = torch.eye(ra.q.shape[3], dtype=ra.q.dtype, device=dev)
-    grid = torch.linspace(0, 1, ra.T, dtype=ra.q.dtype, device=dev).expand(S_r, -1)
-    parts = [place_sequence(ref, list(range(S_r)), S, grid, ident)]
-    parts += [place_sequence(m, t, S, g, R) for m, t, g, R in zip(movs, targets, gammas, rotations)]
-    q, s, present, source = (torch.cat([p[i] for p in parts]) for i in range(4))
-    s[:n_r, :S_r] = ra.s  # the reference's own parameters, exactly (no warp round trip)
-    q[:n_r, :S_r] = ra.q
+    grid = torch.linspace(0, 1, ra.T, dtype=ra.q.dtype, device=dev).expand(ra.q.shape[1], -1)
+    seqs = [(ref, ref_targets, grid, ident)] + list(zip(movs, targets, gammas, rotations))
+    counts = [len(m) for m, *_ in seqs]
+    n = sum(counts)
+    _, _, M, d = ra.q.shape
+    q = ra.q.new_zeros(n, S, M, d)
+    s = ra.s.new_zeros(n, S)
+    present = torch.zeros(n, S, dtype=torch.bool, device=dev)
+    source = torch.full((n, S), -1, dtype=torch.long, device=dev)
+    at = 0
+    for (m, t, g, R), c in zip(seqs, counts):
+        q[at:at + c], s[at:at + c], present[at:at + c], source[at:at + c] = place_sequence(m, t, S, g, R)
+        at += c
+    kept = [k for k, t in enumerate(ref_targets) if t >= 0]
+    idx = torch.as_tensor([ref_targets[k] for k in kept], dtype=torch.long, device=dev)
+    src = torch.as_tensor(kept, dtype=torch.long, device=dev)
+    s[:n_r, idx] = ra.s[:, src]  # the reference's own parameters, exactly (no warp round trip)
+    q[:n_r, idx] = ra.q[:, src]
     root = torch.cat([ra.root] + [m.aligned.root for m in movs])
-    return AlignedTrees(q, s, present, root, torch.tensor(slot_parent, device=dev),
-                        torch.tensor(slot_depth, device=dev), source, lambdas)
+    return AlignedTrees(q, s, present, root, torch.tensor(list(slot_parent), device=dev),
+                        torch.tensor(list(slot_depth), device=dev), source, lambdas)
 
 
 def combine_sequences(ref: AlignedSequence, mov: AlignedSequence, matches: Sequence[tuple[int, int]],
