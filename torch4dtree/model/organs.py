@@ -37,7 +37,7 @@ from ..settings import OrganSettings
 from ..trees.structures import Trees, TreeSequence
 from .organ_table import UP, organ_table
 
-__all__ = ["OrganModel", "OrganModelError", "assemble_frames", "rotate_about_up"]
+__all__ = ["OrganModel", "OrganModelError", "assemble_frames", "carry_parents", "rotate_about_up"]
 
 # the plant latent's features: log total length at the last age, at the middle age, log(1 + organs at the last age)
 LATENT = 3
@@ -246,10 +246,38 @@ class OrganModel(nn.Module):
                 ) -> TreeSequence:
         """The frames of a plant given its organs: each at ``length x growth(age)``, parents before children."""
         present = [k for k in range(len(self.keys)) if chosen[k] >= 0]
-        sizes = {k: length[k] * self.growth[chosen[k]] for k in present}
+        sizes = carry_parents({k: length[k] * self.growth[chosen[k]] for k in present}, self.key_parent)
         shapes = {k: rotate_about_up(self.shape[chosen[k]], turn[k]) for k in present}
         return assemble_frames(sizes, shapes, {k: s_of[k] for k in present}, self.key_parent,
                                self.times().clone(), name)
+
+
+def carry_parents(sizes: dict[int, Tensor], key_parent: Tensor) -> dict[int, Tensor]:
+    """Organ sizes ``sizes[k] (G,)`` (0: absent) with every parent present wherever one of its children is: before
+    it appears at its first size, after it was last seen at its last. Organs copied from different training plants
+    keep their own timing, and a child whose parent's plant had not grown (or had lost) that parent yet would be
+    left out of the frame; returns a new dict (keys in ``sizes`` are parents before children, ``key_parent`` as in
+    :func:`assemble_frames`).
+
+    Example:
+        >>> out = carry_parents({0: torch.tensor([1.0, 2.0, 3.0]), 1: torch.tensor([0.0, 2.0, 0.0]),
+        ...                      2: torch.tensor([1.0, 1.0, 1.0])}, torch.tensor([-1, 0, 1]))
+        >>> out[1].tolist()
+        [2.0, 2.0, 2.0]
+    """
+    out = dict(sizes)
+    for k in sorted(out, reverse=True):  # children before parents: a carried child carries its parent
+        if k == 0:
+            continue
+        parent = int(key_parent[k])
+        size, need = out[parent], out[k] > 0
+        seen = torch.nonzero(size > 0).reshape(-1)
+        if len(seen) == 0 or not bool((need & (size <= 0)).any()):
+            continue
+        held = torch.cummax(size, 0).values  # its last size after it was last seen
+        held = torch.where(held > 0, held, size[seen[0]])  # its first size before it appears
+        out[parent] = torch.where(need & (size <= 0), held, size)
+    return out
 
 
 def assemble_frames(sizes: dict[int, Tensor], shapes: dict[int, Tensor], s: dict[int, Tensor], key_parent: Tensor,
