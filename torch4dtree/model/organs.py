@@ -190,16 +190,23 @@ class OrganModel(nn.Module):
 
         Plants are grown together, :data:`DECODE_CHUNK` at a time (one tensor operation per key for the whole chunk,
         not per plant); each draws its random numbers from its own seed, so a plant does not depend on the others.
+        The work is many mid-sized tensor operations, so it runs on one intra-op thread (a second costs more CPU in
+        synchronisation than it saves).
         """
         self.check_fitted()
         seeds = [int(x) for x in z.reshape(-1)]
         times = self.times().clone()
         out: list[TreeSequence] = []
-        for lo in range(0, len(seeds), DECODE_CHUNK):
-            chunk = seeds[lo:lo + DECODE_CHUNK]
-            chosen, length, turn, s_of = self._grow(chunk)
-            names = [f"sample_{i:03d}" for i in range(lo, lo + len(chunk))]
-            out += self._frames(chosen, length, turn, s_of, times, names)
+        threads = torch.get_num_threads()
+        torch.set_num_threads(1)
+        try:
+            for lo in range(0, len(seeds), DECODE_CHUNK):
+                chunk = seeds[lo:lo + DECODE_CHUNK]
+                chosen, length, turn, s_of = self._grow(chunk)
+                names = [f"sample_{i:03d}" for i in range(lo, lo + len(chunk))]
+                out += self._frames(chosen, length, turn, s_of, times, names)
+        finally:
+            torch.set_num_threads(threads)
         return out
 
     def sample(self, n: int, generator: torch.Generator | None = None) -> list[TreeSequence]:
