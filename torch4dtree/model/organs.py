@@ -309,28 +309,27 @@ def pick_donors(weights: Tensor, u: Tensor) -> Tensor:
 
 
 def carry_parents(sizes: Tensor, key_parent: Tensor, depth: Sequence[int]) -> Tensor:
-    """Organ sizes ``(B, K, G)`` (0: absent) with every parent present wherever one of its children is: before it
-    appears at its first size, after it was last seen at its last. Organs copied from different training plants keep
-    their own timing, so a child whose parent's plant had not grown (or had lost) that parent yet would otherwise be
-    left out of the frame. ``key_parent (K,)`` as in :func:`assemble_frames`, ``depth`` each key's depth (0: the
-    main branch). Returns a new tensor.
+    """Organ sizes ``(B, K, G)`` (0: absent) with every parent kept at its last size after it was last seen while one
+    of its children is there. Organs copied from different training plants keep their own timing, so a child whose
+    parent's plant had lost that parent (a tracking gap, a shed organ) would otherwise be left out of the frame; a
+    child whose parent has not appeared yet stays out until it does (no organ grows before its parent).
+    ``key_parent (K,)`` as in :func:`assemble_frames`, ``depth`` each key's depth (0: the main branch). Returns a new
+    tensor.
 
     Example:
         >>> sizes = torch.tensor([[[1.0, 2.0, 3.0], [0.0, 2.0, 0.0], [1.0, 1.0, 1.0]]])
         >>> carry_parents(sizes, torch.tensor([-1, 0, 1]), [0, 1, 2])[0, 1].tolist()
-        [2.0, 2.0, 2.0]
+        [0.0, 2.0, 2.0]
     """
     depth_t = torch.as_tensor(list(depth), dtype=torch.long)
     out = sizes.clone()
     for d in range(max(depth, default=0), 0, -1):  # deepest first: a carried child carries its parent
         children = torch.nonzero(depth_t == d).reshape(-1)
         need = torch.zeros_like(out).index_add_(1, key_parent[children], (out[:, children] > 0).to(out.dtype)) > 0
-        fill = need & (out <= 0)
-        if not bool(fill.any()):
-            continue
-        held = torch.cummax(out, 2).values  # the last size after it was last seen
-        first = out.gather(2, (out > 0).to(torch.uint8).argmax(2, keepdim=True))  # the first size before it appears
-        out = torch.where(fill, torch.where(held > 0, held, first), out)
+        held = torch.cummax(out, 2).values  # the last size after it was last seen (0 before it appears)
+        fill = need & (out <= 0) & (held > 0)
+        if bool(fill.any()):
+            out = torch.where(fill, held, out)
     return out
 
 
