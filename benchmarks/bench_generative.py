@@ -2,6 +2,7 @@
 
 usage: python benchmarks/bench_generative.py TRAIN_DIR HELDOUT_DIR OUT_DIR [--n 30] [--seed 0] [--paper]
                                              [--label KIND] [--yardstick morpho_eval.py]
+                                             [--against-training]
        python benchmarks/bench_generative.py --speed OUT_DIR [--plants 100] [--frames 10] [--kind tomato]
                                              [--seed 11] [--samples 1000] [--T 32]
 
@@ -35,7 +36,7 @@ from typing import Any
 import torch
 
 from torch4dtree.data import run_synth
-from torch4dtree.evaluate.morphometrics import compare_populations, population_curves
+from torch4dtree.evaluate.morphometrics import AGES, FEATURES, compare_populations, population_curves
 from torch4dtree.io import read_dataset, write_sequence
 from torch4dtree.io.dataset import LoadOptions
 from torch4dtree.model.fourd import FourDTreeModel, sequence_validity
@@ -76,13 +77,18 @@ def yardstick(script: str, real: Path, samples: Path) -> str:
 
 
 def morphometric_table(heldout: Path, folders: dict[str, Path], label: str) -> list[str]:
-    """Markdown rows: each folder's plants against the held-out ones (:func:`compare_populations`)."""
+    """Markdown rows: each folder's plants against the held-out ones (:func:`compare_populations`), then each
+    folder's median ratio per feature at every age."""
     real = population_curves(heldout)
     lines = [f"| {label}: plants vs held out | worst median ratio | KS max | 1-NNA |", "|---|---|---|---|"]
+    ratios = [f"| {label}: median ratio vs held out | " + " | ".join(f"u = {u:g}" for u in AGES) + " |",
+              "|---|" + "---|" * len(AGES)]
     for name, folder in folders.items():
         c = compare_populations(real, population_curves(folder))
         lines.append(f"| {name} | {c['worst_ratio']:.2f} ({c['worst']}) | {c['ks_max']:.2f} | {c['one_nna']:.2f} |")
-    return lines
+        ratios += [f"| {name}: {f} | " + " | ".join(f"{c['features'][f'{f}@{u}']['ratio']:.2f}" for u in AGES) + " |"
+                   for f in FEATURES]
+    return lines + [""] + ratios
 
 
 def peak_gb() -> float:
@@ -127,6 +133,7 @@ def main() -> None:
     ap.add_argument("--T", type=int, default=32)
     ap.add_argument("--paper", action="store_true", help="also fit the paper's FourDTreeModel (slow)")
     ap.add_argument("--label", default="plants", help="the kind named in the morphometric table")
+    ap.add_argument("--against-training", action="store_true", help="also compare the samples with the training plants")
     ap.add_argument("--yardstick", default=None, help="morphometric comparison script (REAL_DIR SAMPLE_DIR)")
     ap.add_argument("--speed", action="store_true", help="the speed check instead (module doc)")
     ap.add_argument("--plants", type=int, default=100)
@@ -154,6 +161,9 @@ def main() -> None:
     folders = {"training plants": train_dir, "training plants, written back": out / "train_roundtrip",
                **{f"{r['model']} model": out / r["model"] for r in results}}
     print("\n".join(morphometric_table(heldout, folders, a.label)))
+    if a.against_training:
+        print("\n".join(morphometric_table(train_dir, {k: v for k, v in folders.items() if "model" in k},
+                                            f"{a.label} (reference: the training plants)")))
     if a.yardstick:
         for folder in folders.values():
             print(f"== {folder.name} vs held out")

@@ -8,6 +8,7 @@ import pytest
 import torch
 
 from torch4dtree.data.synthetic import synthetic_plant
+from torch4dtree.model import organs
 from torch4dtree.model.checkpoint import CheckpointError, load, save_model
 from torch4dtree.model.fourd import sequence_validity
 from torch4dtree.model.organ_forecast import forecast_organs
@@ -84,6 +85,33 @@ def test_seeds_reproduce_and_checkpoint_round_trips(model: OrganModel, tmp_path:
     c = loaded.sample(3, generator=torch.Generator().manual_seed(5))
     assert all(torch.equal(x.frames.points, y.frames.points) for x, y in zip(a, c))
     assert loaded.keys == model.keys
+
+
+def test_plants_decoded_together_equal_plants_decoded_alone(model: OrganModel, monkeypatch: pytest.MonkeyPatch
+                                                            ) -> None:
+    monkeypatch.setattr(organs, "DECODE_CHUNK", 2)  # chunk boundaries inside the batch
+    z = model.sample_coefficients(5, torch.Generator().manual_seed(6))
+    together = model.decode(z)
+    for i, plant in enumerate(together):
+        alone = model.decode(z[i:i + 1])[0]
+        for name in ("points", "parent", "s", "num_branches", "label"):
+            assert torch.equal(getattr(alone.frames, name), getattr(plant.frames, name)), name
+    again = model.decode(z)
+    assert all(torch.equal(a.frames.points, b.frames.points) for a, b in zip(together, again))
+
+
+def test_children_keep_their_parents_present() -> None:
+    # the child (key 2) is there at every age, its parent (key 1) only in the middle one: carried to the last age,
+    # and the child stays out of the first frame, before its parent appears
+    sizes = torch.tensor([[[1.0, 2.0, 3.0], [0.0, 0.5, 0.0], [0.2, 0.2, 0.2]]], dtype=torch.float64)
+    carried = organs.carry_parents(sizes, torch.tensor([-1, 0, 1]), [0, 1, 2])
+    assert carried[0, 1].tolist() == [0.0, 0.5, 0.5] and torch.equal(carried[0, [0, 2]], sizes[0, [0, 2]])
+    up = torch.linspace(0, 1, 4, dtype=torch.float64)[:, None] * torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)
+    shape = up.expand(3, 3, 4, 3)
+    s = torch.full((3, 3), 0.5, dtype=torch.float64)
+    plant = organs.assemble_batch(torch.zeros(3, dtype=torch.long), torch.arange(3), torch.tensor([-1, 0, 1]),
+                                  carried[0], shape, s, torch.arange(3.0), ["p"])[0]
+    assert plant.frames.num_branches.tolist() == [1, 3, 3]
 
 
 def test_organ_checkpoints_fail_clearly(model: OrganModel, tmp_path: Path) -> None:

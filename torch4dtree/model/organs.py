@@ -29,6 +29,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 from torch import Tensor, nn
 
@@ -37,7 +38,8 @@ from ..settings import OrganSettings
 from ..trees.structures import Trees, TreeSequence
 from .organ_table import UP, organ_table
 
-__all__ = ["OrganModel", "OrganModelError", "assemble_frames", "rotate_about_up"]
+__all__ = ["OrganModel", "OrganModelError", "assemble_batch", "assemble_frames", "carry_parents", "pick_donors",
+           "rotate_about_up"]
 
 # the plant latent's features: log total length at the last age, at the middle age, log(1 + organs at the last age)
 LATENT = 3
@@ -46,6 +48,8 @@ SAME_NODE = 1e-4
 # keep a sampled organ in a frame when it is at least this share of its plant's final main-branch length (a shorter
 # one would be a zero-length branch once written)
 MIN_LENGTH = 1e-3
+# plants grown together by OrganModel.decode (bounds the memory of a chunk's organ curves)
+DECODE_CHUNK = 64
 
 
 class OrganModelError(ValueError):
@@ -53,13 +57,17 @@ class OrganModelError(ValueError):
 
 
 def rotate_about_up(x: Tensor, angle: Tensor | float) -> Tensor:
-    """Rotate points ``(..., d)`` about the vertical axis by ``angle`` radians.
+    """Rotate points ``(..., d)`` about the vertical axis by ``angle`` radians (a number, or a tensor that broadcasts
+    against ``x[..., 0]``).
 
     Example:
         >>> rotate_about_up(torch.tensor([[1.0, 0.0, 2.0]]), math.pi / 2).round().tolist()
         [[0.0, 1.0, 2.0]]
     """
-    c, s = math.cos(float(angle)), math.sin(float(angle))
+    if isinstance(angle, Tensor) and angle.numel() > 1:
+        c, s = torch.cos(angle), torch.sin(angle)
+    else:
+        c, s = math.cos(float(angle)), math.sin(float(angle))
     h = [i for i in range(x.shape[-1]) if i != UP][:2]
     out = x.clone()
     out[..., h[0]] = c * x[..., h[0]] - s * x[..., h[1]]
@@ -178,78 +186,216 @@ class OrganModel(nn.Module):
         return torch.randint(0, 2**31 - 1, (n, 1), generator=generator, dtype=torch.long).to(torch.float64)
 
     def decode(self, z: Tensor) -> list[TreeSequence]:
-        """``z (B, 1)`` seeds (:meth:`sample_coefficients`) -> ``B`` 4D trees (``label`` = botanical key index)."""
+        """``z (B, 1)`` seeds (:meth:`sample_coefficients`) -> ``B`` 4D trees (``label`` = botanical key index).
+
+        Plants are grown together, :data:`DECODE_CHUNK` at a time (one tensor operation per key for the whole chunk,
+        not per plant); each draws its random numbers from its own seed, so a plant does not depend on the others.
+        The work is many mid-sized tensor operations, so it runs on one intra-op thread (a second costs more CPU in
+        synchronisation than it saves).
+        """
         self.check_fitted()
-        zz = z.reshape(-1)
-        return [self._grow(torch.Generator().manual_seed(int(seed)), f"sample_{i:03d}") for i, seed in enumerate(zz)]
+        seeds = [int(x) for x in z.reshape(-1)]
+        times = self.times().clone()
+        out: list[TreeSequence] = []
+        threads = torch.get_num_threads()
+        torch.set_num_threads(1)
+        try:
+            for lo in range(0, len(seeds), DECODE_CHUNK):
+                chunk = seeds[lo:lo + DECODE_CHUNK]
+                chosen, length, turn, s_of = self._grow(chunk)
+                names = [f"sample_{i:03d}" for i in range(lo, lo + len(chunk))]
+                out += self._frames(chosen, length, turn, s_of, times, names)
+        finally:
+            torch.set_num_threads(threads)
+        return out
 
     def sample(self, n: int, generator: torch.Generator | None = None) -> list[TreeSequence]:
         """``n`` new 4D trees at :meth:`times`."""
         return self.decode(self.sample_coefficients(n, generator))
 
     def kernel_weights(self, latent: Tensor) -> Tensor:
-        """``(LATENT,) -> (P,)`` the training plants' weights near a plant latent (sum 1)."""
+        """``(..., LATENT) -> (..., P)`` the training plants' weights near plant latents (sum 1)."""
         scale = self.summary.std(0).clamp_min(1e-9)
-        d2 = ((latent - self.summary) / scale).square().sum(-1)
+        d2 = ((latent[..., None, :] - self.summary) / scale).square().sum(-1)
         w = torch.exp(-0.5 * d2 / self.settings.bandwidth ** 2)
-        return w / w.sum() if w.sum() > 0 else torch.full_like(w, 1 / len(w))
+        total = w.sum(-1, keepdim=True)
+        return torch.where(total > 0, w / total.clamp_min(torch.finfo(w.dtype).tiny), 1.0 / w.shape[-1])
 
-    def _latent(self, g: torch.Generator) -> Tensor:
-        """A plant latent from the training plants' kernel density: one of them, moved by ``bandwidth`` standard
-        deviations of Gaussian noise (truncated at ``c``), so every training plant is as likely a neighbour."""
-        plant = int(torch.randint(0, len(self.summary), (), generator=g))
-        eps = torch.randn(LATENT, generator=g, dtype=torch.float64).clamp(-self.settings.c, self.settings.c)
-        return self.summary[plant] + self.settings.bandwidth * self.summary.std(0) * eps
-
-    def _grow(self, g: torch.Generator, name: str) -> TreeSequence:
-        """One plant: latent, then organs key by key (topology, donors, sizes, rotations), then its frames."""
-        w = self.kernel_weights(self._latent(g))
-        has = self.record >= 0  # (P, K)
+    def _draws(self, seeds: list[int]) -> tuple[Tensor, Tensor]:
+        """Each plant's random numbers from its own seed: uniforms ``(B, 3 + 2K)`` (latent's plant, first donor,
+        turn, then per key the switch and the donor's pick) and standard normals ``(B, LATENT + K)`` (latent noise,
+        then per key the length jitter)."""
         K = len(self.keys)
-        chosen = torch.full((K,), -1, dtype=torch.long)  # the training organ each present key copies
-        log_len = torch.zeros(K, dtype=torch.float64)
-        turn = torch.zeros(K, dtype=torch.float64)  # rotation about the vertical of each organ
-        donor_of = torch.full((K,), -1, dtype=torch.long)
-        s_of: dict[int, Tensor] = {}  # each organ's attachment per age
-        for k in range(K):
-            cond = int(self.key_condition[k])
-            if k == 0:
-                donor = int(torch.multinomial(w, 1, generator=g))
-            else:
-                if chosen[cond] < 0:
-                    continue
-                donor = int(donor_of[cond])
-                if float(torch.rand((), generator=g, dtype=torch.float64)) >= self.settings.persistence:
-                    # switch: a plant near the latent among those that have the organ this one follows
-                    donor = int(torch.multinomial(torch.where(has[:, cond], w, torch.zeros_like(w)), 1, generator=g))
-                if not has[donor, k]:
-                    continue
-            r = int(self.record[donor, k])
-            chosen[k], donor_of[k] = r, donor
-            s_of[k] = self.s[r]
-            if k > 0 and self.keys[k][-1] > 0:  # organs sharing a node in their plant share it here too
-                before = int(self.record[donor, cond])
-                if before >= 0:
-                    same = (self.s[r] - self.s[before]).abs() < SAME_NODE
-                    s_of[k] = torch.where(same, s_of[cond], self.s[r])
-            noise = float(torch.randn((), generator=g, dtype=torch.float64))
-            log_len[k] = self.log_length[r] + self.settings.jitter * noise
-            if k == 0:
-                turn[k] = 2 * math.pi * float(torch.rand((), generator=g, dtype=torch.float64))
-            else:
-                parent = int(self.key_parent[k])
-                parent_az = self.azimuth[chosen[parent]] + turn[parent]
-                turn[k] = parent_az - self.parent_azimuth[r]
-        return self._frames(chosen, log_len.exp(), turn, s_of, name)
+        u, n = [], []
+        for seed in seeds:
+            g = torch.Generator().manual_seed(seed)
+            u.append(torch.rand(3 + 2 * K, generator=g, dtype=torch.float64))
+            n.append(torch.randn(LATENT + K, generator=g, dtype=torch.float64))
+        return torch.stack(u), torch.stack(n)
 
-    def _frames(self, chosen: Tensor, length: Tensor, turn: Tensor, s_of: dict[int, Tensor], name: str
-                ) -> TreeSequence:
-        """The frames of a plant given its organs: each at ``length x growth(age)``, parents before children."""
-        present = [k for k in range(len(self.keys)) if chosen[k] >= 0]
-        sizes = {k: length[k] * self.growth[chosen[k]] for k in present}
-        shapes = {k: rotate_about_up(self.shape[chosen[k]], turn[k]) for k in present}
-        return assemble_frames(sizes, shapes, {k: s_of[k] for k in present}, self.key_parent,
-                               self.times().clone(), name)
+    def _grow(self, seeds: list[int]) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+        """Plants from their seeds (module doc): latent, then organs key by key (topology, donors, sizes, rotations),
+        all plants at once. Returns ``chosen (B, K)`` the training organ each key copies (-1: absent), ``length
+        (B, K)`` largest lengths, ``turn (B, K)`` rotations about the vertical and ``s_of (B, K, G)`` attachments."""
+        u, noise = self._draws(seeds)
+        B, K, P = len(seeds), len(self.keys), len(self.summary)
+        plant = (u[:, 0] * P).long().clamp(max=P - 1)
+        eps = noise[:, :LATENT].clamp(-self.settings.c, self.settings.c)
+        w = self.kernel_weights(self.summary[plant] + self.settings.bandwidth * self.summary.std(0) * eps)  # (B, P)
+        has = self.record >= 0  # (P, K)
+        chosen = torch.full((B, K), -1, dtype=torch.long)
+        donor_of = torch.full((B, K), -1, dtype=torch.long)
+        s_of = torch.zeros(B, K, len(self.ages), dtype=torch.float64)
+        turn = torch.zeros(B, K, dtype=torch.float64)
+        switch = u[:, 3:3 + K] >= self.settings.persistence
+        pick = u[:, 3 + K:]
+        rank = [k[-1] if k else 0 for k in self.keys]
+        cond_of, parent_of = self.key_condition.tolist(), self.key_parent.tolist()
+        donor = pick_donors(w, u[:, 1])
+        chosen[:, 0], donor_of[:, 0] = self.record[donor, 0], donor
+        s_of[:, 0] = self.s[chosen[:, 0]]
+        turn[:, 0] = 2 * math.pi * u[:, 2]
+        for k in range(1, K):
+            cond = cond_of[k]
+            alive = chosen[:, cond] >= 0
+            if not bool(alive.any()):
+                continue
+            donor = donor_of[:, cond].clamp(min=0)
+            moved = alive & switch[:, k]
+            if bool(moved.any()):  # a plant near the latent among those that have the organ this one follows
+                donor = donor.clone()
+                near = torch.where(has[:, cond], w[moved].clamp_min(torch.finfo(w.dtype).tiny), 0.0)
+                donor[moved] = pick_donors(near, pick[moved, k])
+            r = torch.where(alive, self.record[donor, k], -1)
+            present = r >= 0
+            rr = r.clamp(min=0)
+            chosen[:, k] = r
+            donor_of[:, k] = torch.where(present, donor, -1)
+            s_k = self.s[rr]
+            if rank[k] > 0:  # organs sharing a node in their plant share it here too
+                before = self.record[donor, cond]
+                same = ((s_k - self.s[before.clamp(min=0)]).abs() < SAME_NODE) & (before >= 0)[:, None]
+                s_k = torch.where(same, s_of[:, cond], s_k)
+            s_of[:, k] = torch.where(present[:, None], s_k, 0.0)
+            parent = parent_of[k]
+            parent_az = self.azimuth[chosen[:, parent].clamp(min=0)] + turn[:, parent]
+            turn[:, k] = torch.where(present, parent_az - self.parent_azimuth[rr], 0.0)
+        log_len = self.log_length[chosen.clamp(min=0)] + self.settings.jitter * noise[:, LATENT:]
+        return chosen, torch.where(chosen >= 0, log_len.exp(), 0.0), turn, s_of
+
+    def _frames(self, chosen: Tensor, length: Tensor, turn: Tensor, s_of: Tensor, times: Tensor, names: list[str]
+                ) -> list[TreeSequence]:
+        """The frames of plants given their organs (:meth:`_grow`): each at ``length x growth(age)``, every parent
+        present wherever one of its children is (:func:`carry_parents`)."""
+        b, k = torch.nonzero(chosen >= 0, as_tuple=True)  # plant-major, keys in order: parents first
+        r = chosen[b, k]
+        sizes = torch.zeros(*chosen.shape, len(self.ages), dtype=torch.float64)
+        sizes[b, k] = length[b, k, None] * self.growth[r]
+        sizes = carry_parents(sizes, self.key_parent, [len(key) for key in self.keys])
+        shapes = rotate_about_up(self.shape[r], turn[b, k][:, None, None])
+        return assemble_batch(b, k, self.key_parent, sizes[b, k], shapes, s_of[b, k], times, names)
+
+
+def pick_donors(weights: Tensor, u: Tensor) -> Tensor:
+    """``weights (B, P) >= 0`` (each row with a positive one), uniforms ``u (B,)`` in ``[0, 1)`` -> ``(B,)`` one index
+    per row drawn in proportion to its weights (inverse CDF: one uniform a draw, so draws batch over rows).
+
+    Example:
+        >>> pick_donors(torch.tensor([[0.0, 1.0, 3.0], [1.0, 0.0, 0.0]]), torch.tensor([0.3, 0.9])).tolist()
+        [2, 0]
+    """
+    cdf = weights.cumsum(-1)
+    return torch.searchsorted(cdf, u[:, None] * cdf[:, -1:], right=True).reshape(-1).clamp(max=weights.shape[-1] - 1)
+
+
+def carry_parents(sizes: Tensor, key_parent: Tensor, depth: Sequence[int]) -> Tensor:
+    """Organ sizes ``(B, K, G)`` (0: absent) with every parent kept at its last size after it was last seen while one
+    of its children is there. Organs copied from different training plants keep their own timing, so a child whose
+    parent's plant had lost that parent (a tracking gap, a shed organ) would otherwise be left out of the frame; a
+    child whose parent has not appeared yet stays out until it does (no organ grows before its parent).
+    ``key_parent (K,)`` as in :func:`assemble_frames`, ``depth`` each key's depth (0: the main branch). Returns a new
+    tensor.
+
+    Example:
+        >>> sizes = torch.tensor([[[1.0, 2.0, 3.0], [0.0, 2.0, 0.0], [1.0, 1.0, 1.0]]])
+        >>> carry_parents(sizes, torch.tensor([-1, 0, 1]), [0, 1, 2])[0, 1].tolist()
+        [0.0, 2.0, 2.0]
+    """
+    depth_t = torch.as_tensor(list(depth), dtype=torch.long)
+    out = sizes.clone()
+    for d in range(max(depth, default=0), 0, -1):  # deepest first: a carried child carries its parent
+        children = torch.nonzero(depth_t == d).reshape(-1)
+        need = torch.zeros_like(out).index_add_(1, key_parent[children], (out[:, children] > 0).to(out.dtype)) > 0
+        held = torch.cummax(out, 2).values  # the last size after it was last seen (0 before it appears)
+        fill = need & (out <= 0) & (held > 0)
+        if bool(fill.any()):
+            out = torch.where(fill, held, out)
+    return out
+
+
+def assemble_batch(plant: Tensor, key: Tensor, key_parent: Tensor, size: Tensor, shape: Tensor, s: Tensor,
+                   times: Tensor, names: Sequence[str]) -> list[TreeSequence]:
+    """4D trees from the organs of ``B = len(names)`` plants at the ``G`` frames ``times``: organ ``i`` (``N`` in
+    all, each plant's main branch with ``key_parent[key[i]] = -1``) of plant ``plant[i]`` and key ``key[i]`` (its
+    parent: the same plant's organ at ``key_parent[key[i]]``) has length ``size[i] (G,)`` (0: absent), unit-length
+    shapes ``shape[i] (G, T, d)`` and attachment ``s[i] (G,)``. An organ shorter than :data:`MIN_LENGTH` of its
+    plant's final main branch, or whose parent is left out, is left out of that frame; the main branch is always there
+    (at least that long). Branches of a frame are in depth-first order, children by ``s`` then key; ``label`` is the
+    key. All plants' organs are placed together, depth by depth.
+    """
+    B, G, N = len(names), len(times), len(key)
+    row_of = torch.full((B, len(key_parent)), -1, dtype=torch.long)
+    row_of[plant, key] = torch.arange(N)
+    kp = key_parent[key]
+    main = kp < 0
+    parent_row = torch.where(main, -1, row_of[plant, kp.clamp(min=0)])
+    depth = torch.zeros(N, dtype=torch.long)
+    up = parent_row.clone()
+    while bool((up >= 0).any()):
+        depth += (up >= 0).long()
+        up = torch.where(up >= 0, parent_row[up.clamp(min=0)], -1)
+    floor = torch.zeros(B, dtype=size.dtype)
+    floor[plant[main]] = MIN_LENGTH * size[main].max(1).values
+    size = size.clone()
+    size[main] = torch.maximum(size[main], floor[plant[main], None])
+    keep = (size >= floor[plant][:, None]) & (main | (parent_row >= 0))[:, None]  # (N, G)
+    points = size[..., None, None] * shape  # (N, G, T, d), each organ from its own base
+    D = int(depth.max())
+    for d in range(1, D + 1):
+        rows = torch.nonzero(depth == d).reshape(-1)
+        pr = parent_row[rows]
+        keep[rows] &= keep[pr]
+        points[rows] += interpolate_curve(points[pr], s[rows][..., None])
+    # depth-first order: sort by plant, frame, then (s, key) of the ancestor at each depth (-1 below an organ)
+    anc = torch.full((N, D + 1), -1, dtype=torch.long)
+    cur, level = torch.arange(N), depth.clone()
+    for _ in range(D + 1):
+        ok = level >= 0
+        anc[ok, level[ok]] = cur[ok]
+        cur = torch.where(ok & (cur >= 0), parent_row[cur.clamp(min=0)], -1)
+        level -= 1
+    er, ej = torch.nonzero(keep, as_tuple=True)
+    columns = []
+    for d in range(D, 0, -1):
+        a = anc[er, d]
+        columns += [torch.where(a >= 0, key[a.clamp(min=0)], -1).numpy(),
+                    torch.where(a >= 0, s[a.clamp(min=0), ej], -1.0).numpy()]
+    order = torch.from_numpy(np.lexsort(columns + [ej.numpy(), plant[er].numpy()]))
+    er, ej = er[order], ej[order]
+    group = plant[er] * G + ej
+    counts = torch.bincount(group, minlength=B * G)
+    local = torch.arange(len(er)) - (counts.cumsum(0) - counts)[group]
+    pos = torch.full((N, G), -1, dtype=torch.long)
+    pos[er, ej] = local
+    is_main = main[er]
+    parent_local = torch.where(is_main, -1, pos[parent_row[er].clamp(min=0), ej])
+    s_out = torch.where(is_main, 0.0, s[er, ej])
+    pts, labels = points[er, ej], key[er]
+    per_plant = counts.reshape(B, G)
+    bounds = [0] + per_plant.sum(1).cumsum(0).tolist()
+    return [TreeSequence(Trees(pts[a:b], parent_local[a:b], s_out[a:b], per_plant[i], labels[a:b]),
+                         times.clone(), names[i])
+            for i, (a, b) in enumerate(zip(bounds[:-1], bounds[1:]))]
 
 
 def assemble_frames(sizes: dict[int, Tensor], shapes: dict[int, Tensor], s: dict[int, Tensor], key_parent: Tensor,
@@ -257,7 +403,8 @@ def assemble_frames(sizes: dict[int, Tensor], shapes: dict[int, Tensor], s: dict
     """A 4D tree from its organs: organ ``k`` (key ``0`` the main branch, parents in ``key_parent``) has length
     ``sizes[k] (G,)`` (0: absent), unit-length shapes ``shapes[k] (G, T, d)`` and attachment ``s[k] (G,)`` at each of
     the ``G`` frames (``times``). An organ shorter than :data:`MIN_LENGTH` of the final main branch, or whose parent
-    is absent, is left out of that frame; the main branch is always there (at least that long).
+    is absent, is left out of that frame; the main branch is always there (at least that long). One plant of
+    :func:`assemble_batch`.
 
     Example:
         >>> up = torch.linspace(0, 1, 4)[:, None] * torch.tensor([0.0, 0.0, 1.0])  # a unit vertical segment
@@ -269,33 +416,9 @@ def assemble_frames(sizes: dict[int, Tensor], shapes: dict[int, Tensor], s: dict
         >>> plant.frames.num_branches.tolist(), plant.frames.points[-1, 0].round(decimals=4).tolist()
         ([1, 2], [0.0, 0.0, 1.0])
     """
-    present = sorted(sizes)
-    children: dict[int, list[int]] = {k: [] for k in present}
-    for k in present[1:]:
-        children[int(key_parent[k])].append(k)
-    floor = MIN_LENGTH * float(sizes[0].max())
-    frames = []
-    for j in range(len(times)):
-        size = {k: float(sizes[k][j]) for k in present}
-        size[0] = max(size[0], floor)
-        points: list[Tensor] = []
-        parent: list[int] = []
-        s_j: list[float] = []
-        label: list[int] = []
-        stack = [(0, -1)]
-        while stack:
-            k, p = stack.pop()
-            if size[k] < floor:
-                continue
-            start = (interpolate_curve(points[p][None], s[k][j].reshape(1, 1))[0, 0] if p >= 0
-                     else torch.zeros(shapes[k].shape[-1], dtype=torch.float64))
-            me = len(points)
-            points.append(start + size[k] * shapes[k][j])
-            parent.append(p)
-            s_j.append(float(s[k][j]) if p >= 0 else 0.0)
-            label.append(k)
-            kids = sorted(children[k], key=lambda c: float(s[c][j]))  # depth-first, children by s
-            stack.extend((c, me) for c in reversed(kids))
-        frames.append(Trees(torch.stack(points), torch.tensor(parent), torch.tensor(s_j, dtype=torch.float64),
-                            torch.tensor([len(points)]), torch.tensor(label)))
-    return TreeSequence(Trees.cat(frames), times, name)
+    keys = sorted(sizes)
+    key = torch.tensor(keys, dtype=torch.long)
+    return assemble_batch(torch.zeros(len(keys), dtype=torch.long), key, key_parent,
+                          torch.stack([sizes[k] for k in keys]).to(torch.float64),
+                          torch.stack([shapes[k] for k in keys]), torch.stack([s[k] for k in keys]).to(torch.float64),
+                          times, [name])[0]
