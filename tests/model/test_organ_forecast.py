@@ -69,3 +69,13 @@ def test_observed_organs_keep_their_size_and_place(fitted: tuple[OrganModel, Tre
         assert int(f.frames.num_branches[-1]) >= int(seen.num_branches[0])
         grown = f.frames.total_length()
         assert (grown[1:] >= grown[:-1] - 1e-6).all()
+
+
+@pytest.mark.parametrize("seed", [1, 3])
+def test_forecast_from_the_plant_itself_keeps_its_organ_counts(seed: int) -> None:
+    # a model of two copies of one plant has that plant as every donor: its continuation has the plant's organs
+    # frame by frame, leaves that die included (maize seeds 1 and 3 lose a leaf after the observed half)
+    plant = synthetic_plant("maize", seed, n_frames=6, T=16).sequence
+    model = OrganModel().fit([plant, plant])
+    for f in forecast_organs(model, plant[[0, 1, 2]], n=2, generator=torch.Generator().manual_seed(0)):
+        assert f.frames.num_branches.tolist() == plant.frames.num_branches[-len(f):].tolist()

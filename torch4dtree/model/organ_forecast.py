@@ -13,12 +13,13 @@ slope of log L(1) on log L(u_obs) over the training plants, clipped to [0, 1]: 1
 plants apart later, 0 when it tells nothing): a Gaussian mixture over the donors with the stated mean and variance.
 
 The organs then follow the donor as in sampling (persistence and switches): an observed organ keeps its size, shape
-and place (arc length along its parent) at the last observed frame and grows on as its donor organ grows after that
-age; new organs are the donor's organs on the corresponding parent beyond the plant's own (by rank along the
-parent), appended after the observed ones. The new organs' sizes are scaled by one factor so that the final frame's
-total length is the drawn one (where the observed organs' growth alone passes it, that growth is scaled down instead
-and no new organ grows; the draw is met unless it is below the observed length). Observed organs at keys no
-training plant has stay as seen.
+and place (arc length along its parent) at the last observed frame, grows on as its donor organ grows after that
+age and vanishes where its donor organ vanishes (leaves that die); new organs are the donor's organs on the
+corresponding parent beyond the plant's own (by rank along the parent), appended after the observed ones. All growth
+after the observed age (the observed organs' increments and the new organs) is scaled by one factor so that the
+final frame's total length is the drawn one (the draw is met unless it is below the length of the observed organs
+that remain): one factor for all growth keeps every organ near its donor organ's size.
+Observed organs at keys no training plant has stay as seen.
 """
 
 from __future__ import annotations
@@ -227,14 +228,17 @@ def _continuation(model: OrganModel, observed: dict[tuple[int, ...], dict], dono
         a = float(azimuth(o["shape"][-1]))
         shape = o["shape"][-1].expand(G, *o["shape"].shape[1:]).clone()
         inc = torch.zeros(G, dtype=torch.float64)
+        kept = torch.full((G,), now, dtype=torch.float64)
         if plant >= 0:
             r = int(model.record[plant, k])
             donor_len = model.log_length[r].exp() * model.growth[r]
             inc = (donor_len - donor_len[j_obs]).clamp_min(0.0)
             inc[: j_obs + 1] = 0.0
             shape[j_obs + 1:] = rotate_about_up(model.shape[r], a - float(model.azimuth[r]))[j_obs + 1:]
+            gone = (model.growth[r] <= 0) & (torch.arange(G) > j_obs)  # the donor organ has vanished by then
+            kept[gone], inc[gone] = 0.0, 0.0
         local[key] = len(fixed)
-        fixed.append(torch.full((G,), now, dtype=torch.float64))
+        fixed.append(kept)
         grow.append(inc)
         shapes.append(shape)
         s.append(o["s"][-1].expand(G).clone())
@@ -263,17 +267,13 @@ def _continuation(model: OrganModel, observed: dict[tuple[int, ...], dict], dono
                 az.append(float(model.azimuth[r]) + turn)
                 source.append((plant, c, False))
         j += 1
-    # observed organs grow on as their donor organs do; new organs take the rest of the drawn final total length
-    # (if observed growth alone passes it, that growth is scaled down and no new organ grows)
+    # all growth after the observed age (observed organs' increments, new organs) is scaled by one factor so that
+    # the final total length is the drawn one
     seen = [m for m in range(len(fixed)) if source[m][2]]
     room = math.exp(log_final) - sum(float(fixed[m][-1]) for m in seen)
-    old = sum(float(grow[m][-1]) for m in seen)
-    new = sum(float(grow[m][-1]) for m in range(len(seen), len(fixed)))
-    if old <= room and new > NO_GROWTH:
-        b, a = 1.0, (room - old) / new
-    else:
-        b, a = (max(room, 0.0) / old if old > NO_GROWTH else 0.0), 0.0
-    sizes = {m: fixed[m] + (b if m < len(seen) else a) * grow[m] for m in range(len(fixed))}
+    growth = sum(float(grow[m][-1]) for m in range(len(fixed)))
+    factor = max(room, 0.0) / growth if growth > NO_GROWTH else 0.0
+    sizes = {m: fixed[m] + factor * grow[m] for m in range(len(fixed))}
     for m in seen[1:]:  # an observed organ keeps its place (arc length) on a parent that grows at its tip
         p = parent[m]
         s[m] = s[m] * fixed[p][-1].clamp_min(NO_GROWTH) / sizes[p].clamp_min(fixed[p][-1].clamp_min(NO_GROWTH))
