@@ -40,6 +40,7 @@ def test_forecast_samples_have_the_stated_spread(fitted: tuple[OrganModel, TreeS
     dist = forecast_distribution(model, partial)
     m, var, mu4 = mixture_moments(dist)
     assert math.isclose(float(dist.mean), m) and math.isclose(float(dist.covariance), var)
+    assert 0.0 <= dist.slope <= 1.0 and 0.0 <= dist.count_slope <= 1.0
     futures = forecast_organs(model, partial, n=DRAWS, generator=torch.Generator().manual_seed(0))
     x = torch.tensor([math.log(float(f.frames[-1].total_length()[0])) for f in futures], dtype=torch.float64)
     # the standard errors of a sample mean and a sample variance of DRAWS independent draws
