@@ -40,6 +40,7 @@ def test_forecast_samples_have_the_stated_spread(fitted: tuple[OrganModel, TreeS
     dist = forecast_distribution(model, partial)
     m, var, mu4 = mixture_moments(dist)
     assert math.isclose(float(dist.mean), m) and math.isclose(float(dist.covariance), var)
+    assert 0.0 <= dist.slope <= 1.0 and 0.0 <= dist.count_slope <= 1.0
     futures = forecast_organs(model, partial, n=DRAWS, generator=torch.Generator().manual_seed(0))
     x = torch.tensor([math.log(float(f.frames[-1].total_length()[0])) for f in futures], dtype=torch.float64)
     # the standard errors of a sample mean and a sample variance of DRAWS independent draws
@@ -69,3 +70,13 @@ def test_observed_organs_keep_their_size_and_place(fitted: tuple[OrganModel, Tre
         assert int(f.frames.num_branches[-1]) >= int(seen.num_branches[0])
         grown = f.frames.total_length()
         assert (grown[1:] >= grown[:-1] - 1e-6).all()
+
+
+@pytest.mark.parametrize("seed", [1, 3])
+def test_forecast_from_the_plant_itself_keeps_its_organ_counts(seed: int) -> None:
+    # a model of two copies of one plant has that plant as every donor: its continuation has the plant's organs
+    # frame by frame, leaves that die included (maize seeds 1 and 3 lose a leaf after the observed half)
+    plant = synthetic_plant("maize", seed, n_frames=6, T=16).sequence
+    model = OrganModel().fit([plant, plant])
+    for f in forecast_organs(model, plant[[0, 1, 2]], n=2, generator=torch.Generator().manual_seed(0)):
+        assert f.frames.num_branches.tolist() == plant.frames.num_branches[-len(f):].tolist()

@@ -13,12 +13,16 @@ slope of log L(1) on log L(u_obs) over the training plants, clipped to [0, 1]: 1
 plants apart later, 0 when it tells nothing): a Gaussian mixture over the donors with the stated mean and variance.
 
 The organs then follow the donor as in sampling (persistence and switches): an observed organ keeps its size, shape
-and place (arc length along its parent) at the last observed frame and grows on as its donor organ grows after that
-age; new organs are the donor's organs on the corresponding parent beyond the plant's own (by rank along the
-parent), appended after the observed ones. The new organs' sizes are scaled by one factor so that the final frame's
-total length is the drawn one (where the observed organs' growth alone passes it, that growth is scaled down instead
-and no new organ grows; the draw is met unless it is below the observed length). Observed organs at keys no
-training plant has stay as seen.
+and place (arc length along its parent) at the last observed frame, grows on as its donor organ grows after that
+age and vanishes where its donor organ vanishes (leaves that die); new organs are the donor's organs on the
+corresponding parent, appended after the observed ones: as many as make the parent's final count
+``m + beta_n * (n - m_now)`` (``n`` the plant's children there now; ``m``, ``m_now`` the donor's at the end and at
+the observed age; ``beta_n`` the least-squares slope of the final organ count on the count at the observed age over
+the training plants, clipped to [0, 1]: 1 adds what the donor adds after that age, 0 makes the donor's final count),
+the donor's latest (by rank along the parent). All growth after the observed age (the observed organs' increments
+and the new organs) is scaled by one factor so that the final frame's total length is the drawn one (the draw is
+met unless it is below the length of the observed organs that remain): one factor for all growth keeps every organ
+near its donor organ's size. Observed organs at keys no training plant has stay as seen.
 """
 
 from __future__ import annotations
@@ -55,6 +59,8 @@ class ForecastDistribution:
         log_length_now: the observed plant's log total length at its last observed frame.
         jitter: standard deviation of the Gaussian noise added to the log final length (the model's ``jitter``).
         bandwidth: the donor kernel's width, chosen by leave-one-out over the training plants (:data:`BANDWIDTHS`).
+        count_slope: ``beta_n``, the least-squares slope of the final organ count on the organ count at the observed
+            age over the training plants, clipped to [0, 1] (how many new organs a continuation gets, module doc).
     """
 
     age: float
@@ -64,6 +70,7 @@ class ForecastDistribution:
     log_length_now: float
     jitter: float
     bandwidth: float
+    count_slope: float = 0.0
 
     @property
     def mean(self) -> Tensor:
@@ -115,6 +122,13 @@ def _bandwidth(d2: Tensor, final: Tensor, shift: Tensor) -> float:
     return max(h for h, m in zip(BANDWIDTHS, means.tolist()) if m <= bound)
 
 
+def _slope(x: Tensor, y: Tensor) -> float:
+    """The least-squares slope of ``y (P,)`` on ``x (P,)``, clipped to [0, 1] (0 when ``x`` does not vary)."""
+    dx = x - x.mean()
+    var = float(dx.square().sum())
+    return min(max(float((dx * (y - y.mean())).sum()) / var, 0.0), 1.0) if var > 0 else 0.0
+
+
 def _observe(model: OrganModel, partial: TreeSequence) -> tuple[dict[tuple[int, ...], dict], ForecastDistribution]:
     """The observed organs by key (each at the last observed frame) and the stated distribution."""
     model.check_fitted()
@@ -130,9 +144,7 @@ def _observe(model: OrganModel, partial: TreeSequence) -> tuple[dict[tuple[int, 
     feats = torch.stack([a.log1p() for a in at], 1)  # (P, 2)
     scale = feats.std(0).clamp_min(1e-9)
     log_final, log_at = total[:, -1].clamp_min(NO_GROWTH).log(), at[0].clamp_min(NO_GROWTH).log()
-    dx = log_at - log_at.mean()
-    var = float(dx.square().sum())
-    beta = min(max(float((dx * (log_final - log_final.mean())).sum()) / var, 0.0), 1.0) if var > 0 else 0.0
+    beta = _slope(log_at, log_final)
     d2 = ((feats[:, None] - feats[None]) / scale).square().sum(-1)  # (P, P) between training plants
     final = torch.stack([log_final, count[:, -1].log1p()], 1)
     sd = final.std(0).clamp_min(1e-9)
@@ -141,7 +153,8 @@ def _observe(model: OrganModel, partial: TreeSequence) -> tuple[dict[tuple[int, 
     w = w / w.sum() if float(w.sum()) > 0 else torch.full_like(w, 1 / len(w))
     log_now = math.log(max(now, NO_GROWTH))
     dist = ForecastDistribution(age=u_obs, weights=w, components=log_final + beta * (log_now - log_at), slope=beta,
-                                log_length_now=log_now, jitter=model.settings.jitter, bandwidth=bandwidth)
+                                log_length_now=log_now, jitter=model.settings.jitter, bandwidth=bandwidth,
+                                count_slope=_slope(at[1], count[:, -1]))
     return observed, dist
 
 
@@ -204,6 +217,22 @@ def forecast_organs(model: OrganModel, partial: TreeSequence, n: int = 1, genera
     return out
 
 
+def _new_children(model: OrganModel, plant: int, keys: list[int], observed: dict[tuple[int, ...], dict],
+                  key: tuple[int, ...], j_obs: int, slope: float, was_seen: bool) -> list[int]:
+    """The key indices of the new children a continuation takes from training ``plant`` on the organ at ``key``
+    (``keys``: all children keys of that organ, in rank order): on a new organ, all of the plant's; on an observed
+    organ with ``n`` children now, of the plant's ``m`` children (``m_now`` of them at the observed age) the last
+    ``round(m + slope * (n - m_now)) - n`` (module doc)."""
+    rows = {c: int(model.record[plant, c]) for c in keys}
+    has = [c for c in keys if rows[c] >= 0 and float(model.growth[rows[c]].max()) > 0]
+    if not was_seen:
+        return has
+    n = sum(1 for o in observed if len(o) == len(key) + 1 and o[:-1] == key)
+    m_now = sum(1 for c in has if float(model.growth[rows[c], j_obs]) > 0)
+    new = max(0, round(len(has) + slope * (n - m_now)) - n)
+    return has[len(has) - new:] if new else []
+
+
 def _continuation(model: OrganModel, observed: dict[tuple[int, ...], dict], donor: int, log_final: float,
                   dist: ForecastDistribution, j_obs: int, index: dict[tuple[int, ...], int],
                   children: list[list[int]], g: torch.Generator, name: str) -> TreeSequence:
@@ -227,14 +256,17 @@ def _continuation(model: OrganModel, observed: dict[tuple[int, ...], dict], dono
         a = float(azimuth(o["shape"][-1]))
         shape = o["shape"][-1].expand(G, *o["shape"].shape[1:]).clone()
         inc = torch.zeros(G, dtype=torch.float64)
+        kept = torch.full((G,), now, dtype=torch.float64)
         if plant >= 0:
             r = int(model.record[plant, k])
             donor_len = model.log_length[r].exp() * model.growth[r]
             inc = (donor_len - donor_len[j_obs]).clamp_min(0.0)
             inc[: j_obs + 1] = 0.0
             shape[j_obs + 1:] = rotate_about_up(model.shape[r], a - float(model.azimuth[r]))[j_obs + 1:]
+            gone = (model.growth[r] <= 0) & (torch.arange(G) > j_obs)  # the donor organ has vanished by then
+            kept[gone], inc[gone] = 0.0, 0.0
         local[key] = len(fixed)
-        fixed.append(torch.full((G,), now, dtype=torch.float64))
+        fixed.append(kept)
         grow.append(inc)
         shapes.append(shape)
         s.append(o["s"][-1].expand(G).clone())
@@ -249,11 +281,8 @@ def _continuation(model: OrganModel, observed: dict[tuple[int, ...], dict], dono
             if float(torch.rand((), generator=g, dtype=torch.float64)) >= model.settings.persistence:
                 plant = _holder(model, w, k, g)
             key = model.keys[k]
-            ranks = sum(1 for o in observed if len(o) == len(key) + 1 and o[:-1] == key) if was_seen else 0
-            for c in children[k][ranks:]:  # after the plant's own children on an observed organ
+            for c in _new_children(model, plant, children[k], observed, key, j_obs, dist.count_slope, was_seen):
                 r = int(model.record[plant, c])
-                if r < 0 or not float(model.growth[r].max()) > 0:
-                    continue
                 turn = az[j] - float(model.parent_azimuth[r])
                 fixed.append(torch.zeros(G, dtype=torch.float64))
                 grow.append(model.log_length[r].exp() * model.growth[r])
@@ -263,17 +292,13 @@ def _continuation(model: OrganModel, observed: dict[tuple[int, ...], dict], dono
                 az.append(float(model.azimuth[r]) + turn)
                 source.append((plant, c, False))
         j += 1
-    # observed organs grow on as their donor organs do; new organs take the rest of the drawn final total length
-    # (if observed growth alone passes it, that growth is scaled down and no new organ grows)
+    # all growth after the observed age (observed organs' increments, new organs) is scaled by one factor so that
+    # the final total length is the drawn one
     seen = [m for m in range(len(fixed)) if source[m][2]]
     room = math.exp(log_final) - sum(float(fixed[m][-1]) for m in seen)
-    old = sum(float(grow[m][-1]) for m in seen)
-    new = sum(float(grow[m][-1]) for m in range(len(seen), len(fixed)))
-    if old <= room and new > NO_GROWTH:
-        b, a = 1.0, (room - old) / new
-    else:
-        b, a = (max(room, 0.0) / old if old > NO_GROWTH else 0.0), 0.0
-    sizes = {m: fixed[m] + (b if m < len(seen) else a) * grow[m] for m in range(len(fixed))}
+    growth = sum(float(grow[m][-1]) for m in range(len(fixed)))
+    factor = max(room, 0.0) / growth if growth > NO_GROWTH else 0.0
+    sizes = {m: fixed[m] + factor * grow[m] for m in range(len(fixed))}
     for m in seen[1:]:  # an observed organ keeps its place (arc length) on a parent that grows at its tip
         p = parent[m]
         s[m] = s[m] * fixed[p][-1].clamp_min(NO_GROWTH) / sizes[p].clamp_min(fixed[p][-1].clamp_min(NO_GROWTH))
