@@ -29,6 +29,9 @@ RANK_NODE_TOL = 0.02
 # "rank": a node counts 1 - exp(-(l / (RANK_SIGNIFICANT x main branch length))^2) towards the ranks above it, l its
 # largest subtree's total length: a skeleton spur a few % of the stem long barely counts, an organ counts ~1
 RANK_SIGNIFICANT = 0.1
+RANK_LEVELS = "main"
+RANK_SCALE = "parent"
+AXIL_OFFSET = 0.0
 
 
 @dataclass
@@ -94,15 +97,17 @@ def _node_ranks(s_arc: np.ndarray, parent: list[int], children: list[list[int]],
         if parent[i] >= 0:
             total[parent[i]] += total[i]
     out = s_arc.copy()
-    if not children or not children[0]:
-        return out
-    stem = np.asarray(children[0])  # deeper children keep their arc fractions
-    scale = max(RANK_SIGNIFICANT * float(lengths[0]), MIN_LENGTH)
-    below = 0.0
-    for grp in order_groups(s_arc[stem], RANK_NODE_TOL):
-        members = stem[grp]
-        out[members] = below
-        below += 1.0 - math.exp(-((float(total[members].max()) / scale) ** 2))
+    for p in (range(len(parent)) if RANK_LEVELS == "all" else [0]):
+        if not children or not children[p]:
+            continue
+        kids = np.asarray(children[p])
+        scale = max(RANK_SIGNIFICANT * float(lengths[p if RANK_SCALE == "parent" else 0]), MIN_LENGTH)
+        below = 0.0
+        for grp in order_groups(s_arc[kids], RANK_NODE_TOL):
+            members = kids[grp]
+            carried = (total[members] - lengths[members]) / scale
+            out[members] = below + AXIL_OFFSET * (1.0 - np.exp(-carried ** 2))
+            below += 1.0 - math.exp(-((float(total[members].max()) / scale) ** 2))
     return out
 
 
