@@ -34,7 +34,7 @@ __all__ = [
 # global rotation searched by a registration: data in one frame, about the up axis, or any (docs/method.md §3)
 ROTATIONS = ("none", "vertical", "so3")
 # how two trees' matched children are compared: the parent's warp, arc length, or node rank (docs/method.md §3)
-POSITIONS = ("warped", "arclength", "rank")
+POSITIONS = ("warped", "arclength", "rank", "nodes")
 # skeleton -> branch hierarchy: which child continues a branch at a branch point (docs/method.md §2)
 HIERARCHIES = ("straightest", "heaviest", "longest", "continuation")
 # the default rule; "continuation" (straightness weighed with what each child carries) is an option whose gain on
