@@ -31,8 +31,8 @@ RANK_NODE_TOL = 0.02
 # "rank": a node counts 1 - exp(-(l / (RANK_SIGNIFICANT x main branch length))^2) towards the ranks above it, l its
 # largest subtree's total length: a skeleton spur a few % of the stem long barely counts, an organ counts ~1
 RANK_SIGNIFICANT = 0.1
-# "nodes": a side branch's node counts 1 - exp(-(l / (NODE_SIGNIFICANT x its length))^NODE_POWER) (the main branch's
-# as "rank"): an organ 9 % of its parent long counts ~1, a spur 3 % long ~0.06
+# "nodes": a node counts 1 - exp(-(l / (NODE_SIGNIFICANT x its parent's length))^NODE_POWER): an organ 9 % of its
+# parent long counts ~1, a spur 3 % long ~0.06
 NODE_SIGNIFICANT = 0.06
 NODE_POWER = 4.0
 # "nodes": a child that carries more than AXIS_CARRIES times its own length (an axis: a shoot with its leaves, not a
@@ -124,7 +124,7 @@ def _node_ranks(s_arc: np.ndarray, parent: list[int], children: list[list[int]],
         if not children[p]:
             continue
         kids = np.asarray(children[p])
-        share, power = (RANK_SIGNIFICANT, 2.0) if p == 0 else (NODE_SIGNIFICANT, NODE_POWER)
+        share, power = (NODE_SIGNIFICANT, NODE_POWER) if every_branch else (RANK_SIGNIFICANT, 2.0)
         scale = max(share * float(lengths[p]), MIN_LENGTH)
         below = 0.0
         for grp in order_groups(s_arc[kids], RANK_NODE_TOL):
