@@ -33,8 +33,9 @@ __all__ = [
 
 # global rotation searched by a registration: data in one frame, about the up axis, or any (docs/method.md §3)
 ROTATIONS = ("none", "vertical", "so3")
-# how two trees' matched children are compared: the parent's warp, arc length, or node rank (docs/method.md §3)
-POSITIONS = ("warped", "arclength", "rank")
+# how two trees' matched children are compared: the parent's warp, arc length, node rank on the main branch or on every
+# branch (docs/method.md §3)
+POSITIONS = ("warped", "arclength", "rank", "nodes")
 # skeleton -> branch hierarchy: which child continues a branch at a branch point (docs/method.md §2)
 HIERARCHIES = ("straightest", "heaviest", "longest", "continuation")
 # the default rule; "continuation" (straightness weighed with what each child carries) is an option whose gain on
@@ -291,10 +292,10 @@ class CrossSettings(_PlainDict):
     Example:
         >>> CrossSettings(lp=None).lp is None
         True
-        >>> CrossSettings(positions="fraction")
+        >>> CrossSettings(positions="fraction")  # doctest: +ELLIPSIS
         Traceback (most recent call last):
         ...
-        torch4dtree.trees.structures.TreeError: positions must be one of ('warped', 'arclength', 'rank'), got 'fraction'
+        torch4dtree.trees.structures.TreeError: positions must be one of ('warped', ..., 'nodes'), got 'fraction'
     """
 
     positions: str = CROSS_POSITIONS

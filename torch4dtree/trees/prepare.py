@@ -2,7 +2,8 @@
 
 ``positions`` (docs/method.md §3) says what a child's place on its parent is: ``"warped"`` its bifurcation
 parameter moved by the parent's warp, ``"arclength"`` its arc length from the parent's base, ``"rank"`` (main
-branch's children) its node rank, the weighted count of nodes below it.
+branch's children) its node rank, the weighted count of nodes below it, ``"nodes"`` its node rank on every branch,
+an axillary shoot half a node above the leaf of its node (two plants of a kind: the leaf or shoot at node n).
 """
 
 from __future__ import annotations
@@ -20,7 +21,8 @@ from .aligned import Lambdas, subtree_sq_norms
 from .matching import order_groups
 from .structures import Trees
 
-__all__ = ["MIN_LENGTH", "PreparedTree", "RANK_NODE_TOL", "RANK_SIGNIFICANT", "child_positions", "prepare_tree"]
+__all__ = ["AXIL_OFFSET", "AXIS_CARRIES", "MIN_LENGTH", "NODE_POWER", "NODE_SIGNIFICANT", "PreparedTree",
+           "RANK_NODE_TOL", "RANK_SIGNIFICANT", "child_positions", "prepare_tree"]
 
 # floor of a length used as a divisor: a zero-length branch gives finite positions instead of nan
 MIN_LENGTH = 1e-12
@@ -29,6 +31,14 @@ RANK_NODE_TOL = 0.02
 # "rank": a node counts 1 - exp(-(l / (RANK_SIGNIFICANT x main branch length))^2) towards the ranks above it, l its
 # largest subtree's total length: a skeleton spur a few % of the stem long barely counts, an organ counts ~1
 RANK_SIGNIFICANT = 0.1
+# "nodes": a node counts 1 - exp(-(l / (NODE_SIGNIFICANT x its parent's length))^NODE_POWER): an organ 9 % of its
+# parent long counts ~1, a spur 3 % long ~0.06
+NODE_SIGNIFICANT = 0.06
+NODE_POWER = 4.0
+# "nodes": a child that carries more than AXIS_CARRIES times its own length (an axis: a shoot with its leaves, not a
+# compound leaf with its leaflets) sits AXIL_OFFSET of a node above the other organs of its node
+AXIS_CARRIES = 1.5
+AXIL_OFFSET = 0.5
 
 
 @dataclass
@@ -51,8 +61,19 @@ def prepare_tree(tree: Trees, lambdas: Lambdas, positions: str = "warped") -> Pr
 
     ``positions`` (see :func:`child_positions`): ``"warped"``: ``s`` as given; ``"arclength"``: ``s`` as arc-length
     fractions of the parents (the parameters themselves for uniformly resampled trees); ``"rank"``: the main
-    branch's children's ``s`` as node ranks (:func:`_node_ranks`), deeper ones as arc-length fractions.
+    branch's children's ``s`` as node ranks (:func:`_node_ranks`), deeper ones as arc-length fractions;
+    ``"nodes"``: every child's ``s`` as its node rank on its parent, axes :data:`AXIL_OFFSET` above their node.
     ``lambdas`` weigh the recursive subtree norms (``norm``, the cost of leaving a subtree unmatched).
+
+    Example (a stem with a leaf at 1/3 and a shoot at 2/3 carrying two leaves):
+        >>> import numpy as np
+        >>> z = np.linspace(0, 1, 4)[:, None]
+        >>> stem, leaf = np.hstack([0 * z, 0 * z, 9 * z]), np.hstack([2 * z, 0 * z, 3 + 0 * z])
+        >>> shoot = np.hstack([0 * z, 3 * z, 6 + 3 * z])
+        >>> kids = [np.hstack([-5 * z, 1 + 0 * z, 7 + 0 * z]), np.hstack([5 * z, 2 + 0 * z, 8 + 0 * z])]
+        >>> tree = Trees.from_branches([[stem, leaf, shoot, *kids]], [[-1, 0, 0, 2, 2]], T=8)
+        >>> prepare_tree(tree, (1, 1, 1), "nodes").s.round(1).tolist()
+        [0.0, 0.0, 1.5, 0.0, 1.0]
     """
     if tree.num_trees != 1:
         raise ValueError(f"expected a single tree, got a batch of {tree.num_trees}")
@@ -75,34 +96,44 @@ def prepare_tree(tree: Trees, lambdas: Lambdas, positions: str = "warped") -> Pr
         for i, p in enumerate(parent):
             if p >= 0:
                 s[i] = np.interp(s[i], grid, arc[p]) / max(float(arc[p, -1]), MIN_LENGTH)
-        if positions == "rank":
-            s = _node_ranks(s, parent, children, lengths)
+        if positions in ("rank", "nodes"):
+            s = _node_ranks(s, parent, children, lengths, every_branch=positions == "nodes")
     return PreparedTree(tree.points, q, s, frac, parent, children, tree.depth.tolist(), np.sqrt(lengths),
                         np.asarray(subtree_sq_norms(lengths.tolist(), parent, lambdas)))
 
 
-def _node_ranks(s_arc: np.ndarray, parent: list[int], children: list[list[int]], lengths: np.ndarray) -> np.ndarray:
-    """``(N,)`` positions: the main branch's children as the weighted count of nodes below them on it (siblings of
-    one node share a rank), deeper children keep their arc-length fractions ``s_arc (N,)``.
+def _node_ranks(s_arc: np.ndarray, parent: list[int], children: list[list[int]], lengths: np.ndarray,
+                every_branch: bool = False) -> np.ndarray:
+    """``(N,)`` positions: a branch's children as the weighted count of nodes below them on it (siblings of one node
+    share a rank); only the main branch's children unless ``every_branch``, the others keep their arc-length
+    fractions ``s_arc (N,)``. With ``every_branch`` an axis (a child carrying more than :data:`AXIS_CARRIES` times
+    its own length) sits :data:`AXIL_OFFSET` of a node above the other organs of its node.
 
     Why: plants of one kind at different stages share their basal nodes (node k of one is node k of the other),
-    while the arc length of node k grows with the internodes below it. Only the main branch: leaflets and their
-    spurs count differently from plant to plant (docs/experiments.md).
+    while the arc length of node k grows with the internodes below it. ``every_branch`` (plants compared with each
+    other): the same holds on side shoots of different lengths, and a leaf is not the shoot in its axil, which the
+    shape terms alone would pair (in SRVF a longer curve is closer than none). Only the main branch between frames
+    of one plant: leaflets and their spurs count differently from day to day (docs/experiments.md).
     """
     total = lengths.astype(np.float64).copy()  # subtree total lengths, children after parents in packed order
     for i in range(len(parent) - 1, 0, -1):
         if parent[i] >= 0:
             total[parent[i]] += total[i]
     out = s_arc.copy()
-    if not children or not children[0]:
-        return out
-    stem = np.asarray(children[0])  # deeper children keep their arc fractions
-    scale = max(RANK_SIGNIFICANT * float(lengths[0]), MIN_LENGTH)
-    below = 0.0
-    for grp in order_groups(s_arc[stem], RANK_NODE_TOL):
-        members = stem[grp]
-        out[members] = below
-        below += 1.0 - math.exp(-((float(total[members].max()) / scale) ** 2))
+    for p in (range(len(parent)) if every_branch else range(min(len(parent), 1))):
+        if not children[p]:
+            continue
+        kids = np.asarray(children[p])
+        share, power = (NODE_SIGNIFICANT, NODE_POWER) if every_branch else (RANK_SIGNIFICANT, 2.0)
+        scale = max(share * float(lengths[p]), MIN_LENGTH)
+        below = 0.0
+        for grp in order_groups(s_arc[kids], RANK_NODE_TOL):
+            members = kids[grp]
+            out[members] = below
+            if every_branch:
+                carried = (total[members] - lengths[members]) / np.maximum(AXIS_CARRIES * lengths[members], MIN_LENGTH)
+                out[members] += AXIL_OFFSET * (1.0 - np.exp(-(carried ** 4)))
+            below += 1.0 - math.exp(-((float(total[members].max()) / scale) ** power))
     return out
 
 
@@ -113,14 +144,14 @@ def child_positions(mov: PreparedTree, ref: PreparedTree, a: int, b: int, childr
 
     ``"warped"``: ``gamma_ab^{-1}(s_c)`` (``gamma_ab (T,)`` the parent's warp sampled on ``grid (T,)``,
     docs/method.md §3); ``"arclength"``: their arc length from the parent's base whatever the warp, in units of the
-    reference parent's length (may exceed 1); ``"rank"``: their node ranks as they are.
+    reference parent's length (may exceed 1); ``"rank"``, ``"nodes"``: their node ranks as they are.
     """
     if not len(children):
         return np.zeros(0)
     s_c = mov.s[list(children)]
     if positions == "arclength":
         return s_c * mov.sqrt_len[a] ** 2 / max(float(ref.sqrt_len[b]) ** 2, MIN_LENGTH)
-    if positions == "rank":
+    if positions in ("rank", "nodes"):
         return s_c.copy()
     return np.interp(s_c, gamma_ab, grid)
 
