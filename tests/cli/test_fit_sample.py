@@ -36,6 +36,9 @@ def test_fit_then_sample(dataset: str, tmp_path) -> None:
     assert all(a >= b for a, b in zip(r["modes"]["variance"], r["modes"]["variance"][1:]))
     assert r["reconstruction"]["max"] >= 0 and r["seconds"]["fit"] > 0
     assert "## Modes" in (run / "report.md").read_text()
+    space = r["tree_space"]  # the layout bound: 3 tiny plants stay under it, nothing dropped
+    assert space["slots"] <= space["max_slots"] and space["dropped_share"] == 0.0
+    assert space["slots_opened"] == space["slots"] and "Slots opened" in (run / "report.md").read_text()
     # an existing run directory is refused
     assert main(["fit", dataset, "--config", str(cfg), "--out", str(run), "--quiet", "--no-figures"]) == 2
     out = tmp_path / "samples"

@@ -62,8 +62,9 @@ def model_report(model: Any, dataset: str | Path, seqs: Sequence[Any], seconds: 
     return {
         "model": "paper",
         "dataset": _dataset(dataset, seqs),
-        "tree_space": {k: pop[k] for k in ("reference", "slots", "reference_slots", "components",
-                                           "variance_explained")},
+        "tree_space": {**{k: pop[k] for k in ("reference", "slots", "reference_slots", "components",
+                                              "variance_explained")},
+                       **{k: pop.get(k) for k in ("max_slots", "slots_opened", "dropped_share")}},
         "registration": {
             "within_sequence_mean": pop["within_sequence_distance_mean"],
             "cross_sequence": {"before": _spread(pop["cross_distance_before"]),
@@ -87,12 +88,20 @@ def _organ_markdown(r: dict[str, Any]) -> list[str]:
             f"c {st['c']:g}."]
 
 
+def _bound_text(space: dict[str, Any]) -> str:
+    """The layout bound's sentence (empty for models fitted without one)."""
+    if space.get("max_slots") is None or space.get("dropped_share") is None:
+        return ""
+    return (f" Slots opened {space['slots_opened']}, kept at most {space['max_slots']}: "
+            f"{100 * space['dropped_share']:.2f} % of the training frames' squared length dropped.")
+
+
 def _paper_markdown(r: dict[str, Any]) -> list[str]:
     """The body of a :class:`~torch4dtree.model.FourDTreeModel`'s report (layout, distances, modes)."""
     reg = r["registration"]
     lines = [f"Layout: {r['tree_space']['slots']} slots; tree PCA {r['tree_space']['components']} components "
              f"({100 * r['tree_space']['variance_explained']:.1f} % of the frames' variance); "
-             f"reference 4D tree {r['tree_space']['reference']}.", "",
+             f"reference 4D tree {r['tree_space']['reference']}.{_bound_text(r['tree_space'])}", "",
              "## Distances (mean / median / max)", "", "| stage | before | after |", "|---|---|---|"]
     for name, key in (("cross-sequence spatial (representatives)", "cross_sequence"),
                       ("temporal (trajectories onto the 4D mean)", "temporal")):

@@ -36,7 +36,7 @@ from torch import Tensor
 
 from ..trees.structures import TreeSequence
 from .organ_table import azimuth, plant_organs
-from .organs import OrganModel, assemble_frames, rotate_about_up
+from .organs import OrganModel, assemble_frames, carry_parents, rotate_about_up
 
 __all__ = ["ForecastDistribution", "forecast_distribution", "forecast_organs"]
 
@@ -302,5 +302,12 @@ def _continuation(model: OrganModel, observed: dict[tuple[int, ...], dict], dono
     for m in seen[1:]:  # an observed organ keeps its place (arc length) on a parent that grows at its tip
         p = parent[m]
         s[m] = s[m] * fixed[p][-1].clamp_min(NO_GROWTH) / sizes[p].clamp_min(fixed[p][-1].clamp_min(NO_GROWTH))
-    return assemble_frames(sizes, dict(enumerate(shapes)), dict(enumerate(s)), torch.tensor(parent),
-                           model.times().clone(), name)
+    depth = []
+    for m in range(len(parent)):
+        d, up = 0, parent[m]
+        while up >= 0:
+            d, up = d + 1, parent[up]
+        depth.append(d)
+    carried = carry_parents(torch.stack([sizes[m] for m in range(len(fixed))])[None], torch.tensor(parent), depth)[0]
+    return assemble_frames(dict(enumerate(carried)), dict(enumerate(shapes)), dict(enumerate(s)),
+                           torch.tensor(parent), model.times().clone(), name)
