@@ -267,7 +267,7 @@ def test_library_defaults_keep_identities_between_consecutive_frames(kind):
     least = 0.92 if kind == "almond" else 0.98
     assert precision >= least and recall >= least, (precision, recall)
     if kind == "maize":
-        assert pooled(positions="warped")[0] < 0.95
+        assert pooled(positions="warped", order_tol=None)[0] < 0.95  # with any matching
 
 
 def test_library_defaults_keep_maize_identities_across_sparse_frames():

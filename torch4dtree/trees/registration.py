@@ -371,9 +371,15 @@ def register_to_reference(trees: Trees, reference: Trees, lambdas: Sequence[floa
 
 
 def register_trees(moving: Trees, reference: Trees, lambdas: Sequence[float] = (1.0, 1.0, 1.0),
-                   rotation: str = "none", **kwargs: object) -> TreeRegistration:
+                   rotation: str = "none", order_tol: float | None = ORDER_TOL, **kwargs: object) -> TreeRegistration:
     """Register one tree onto another (docs/method.md §3); ``kwargs``: the settings of
     :func:`register_to_reference`.
+
+    ``order_tol`` (default :data:`ORDER_TOL`): matched children keep their order along their parents, siblings at
+    one node excepted (:func:`.matching.ordered_assignment`), as organs of one plant do between snapshots and as
+    the k-th organ of two plants of a kind do. Why: a shoot or spur whose direction turns between snapshots is
+    otherwise matched to a neighbour of like direction, and its neighbours shift along (woody trees).
+    ``None``: any partial matching, the metric's own (:func:`register_to_reference`'s default).
 
     Returns a :class:`TreeRegistration`; ``distance`` is the tree-shape distance (never above ``distance_before``,
     the index-order one).
@@ -390,6 +396,7 @@ def register_trees(moving: Trees, reference: Trees, lambdas: Sequence[float] = (
     """
     if moving.num_trees != 1:
         raise ValueError(f"moving must be a single tree, got {moving.num_trees}")
-    return register_to_reference(moving, reference, lambdas, rotation, **kwargs)[0]  # type: ignore[arg-type]
+    return register_to_reference(moving, reference, lambdas, rotation, order_tol=order_tol,  # type: ignore[arg-type]
+                                 **kwargs)[0]
 
 
