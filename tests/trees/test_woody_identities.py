@@ -1,4 +1,4 @@
-"""Identities of a woody tree's spurs between two snapshots with the library defaults (``register_trees``)."""
+"""Identities of a woody tree's spurs between two snapshots: ``register_trees`` with ordered matching."""
 
 from __future__ import annotations
 
@@ -6,6 +6,7 @@ import numpy as np
 import torch
 
 from torch4dtree import Trees
+from torch4dtree.settings import ORDER_TOL
 from torch4dtree.trees import register_trees
 
 SCAFFOLD_DIR = np.array([np.sin(np.radians(50)), 0.0, np.cos(np.radians(50))])  # leaves the trunk at 50 degrees
@@ -34,11 +35,11 @@ def _tree(azimuths: list[float]) -> Trees:
 
 def test_spurs_that_turn_keep_their_places() -> None:
     """Spurs 4 and 5 exchange directions between the snapshots (60 degrees apart, each turns by 60 degrees): matched by
-    shape they swap places along the scaffold, 16 mm apart; the default order-keeping matching keeps every spur
+    shape they swap places along the scaffold, 16 mm apart; order-keeping matching keeps every spur
     with itself (a simulator's young tree turns spurs like this, docs/experiments.md)."""
     earlier = _tree([0.0, 120.0, 180.0, 300.0])
     later = _tree([0.0, 180.0, 120.0, 300.0])
-    free = register_trees(later, earlier, order_tol=None)
+    free = register_trees(later, earlier)  # the default: any matching
     assert (3, 4) in free.matches and (4, 3) in free.matches  # the case is a real one: any matching swaps them
-    reg = register_trees(later, earlier)
+    reg = register_trees(later, earlier, order_tol=ORDER_TOL)
     assert reg.matches == [(k, k) for k in range(6)]

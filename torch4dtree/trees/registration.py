@@ -273,7 +273,9 @@ def register_to_reference(trees: Trees, reference: Trees, lambdas: Sequence[floa
             node k of a growing plant stays node k, so identities survive elongating stems. ``"warped"``: the
             child moves with its parent's warp, so the distance is the layout's own metric (what means and
             geodesics need). ``"arclength"``: its arc length from the parent's base in units of the reference
-            parent's length. Whatever ``positions``, the results' ``aligned`` holds bifurcation parameters, so it
+            parent's length. ``"nodes"``: node ranks on every branch, a side shoot half a node above the organs
+            of its node (plants of one kind compared across plants, :mod:`.prepare`). Whatever ``positions``, the
+            results' ``aligned`` holds bifurcation parameters, so it
             decodes and :func:`~torch4dtree.trees.geodesic` works; only with ``"warped"`` is ``distance`` the
             layout's (and the geodesic's) length.
         order_tol: ``None`` (default, the metric's own matching): each node's side subtrees are matched in any
@@ -371,15 +373,15 @@ def register_to_reference(trees: Trees, reference: Trees, lambdas: Sequence[floa
 
 
 def register_trees(moving: Trees, reference: Trees, lambdas: Sequence[float] = (1.0, 1.0, 1.0),
-                   rotation: str = "none", order_tol: float | None = ORDER_TOL, **kwargs: object) -> TreeRegistration:
+                   rotation: str = "none", order_tol: float | None = None, **kwargs: object) -> TreeRegistration:
     """Register one tree onto another (docs/method.md §3); ``kwargs``: the settings of
     :func:`register_to_reference`.
 
-    ``order_tol`` (default :data:`ORDER_TOL`): matched children keep their order along their parents, siblings at
-    one node excepted (:func:`.matching.ordered_assignment`), as organs of one plant do between snapshots and as
-    the k-th organ of two plants of a kind do. Why: a shoot or spur whose direction turns between snapshots is
-    otherwise matched to a neighbour of like direction, and its neighbours shift along (woody trees).
-    ``None``: any partial matching, the metric's own (:func:`register_to_reference`'s default).
+    ``order_tol``: ``None`` (default) any partial matching, the metric's own; :data:`ORDER_TOL`: matched children
+    keep their order along their parents, siblings at one node excepted (:func:`.matching.ordered_assignment`), as
+    organs of one plant do between snapshots. Ordered matching keeps a woody tree's spurs whose direction turns
+    between snapshots with themselves (any matching gives them a neighbour of like direction), but leaves more length
+    unmatched where children cross (docs/method.md §7: cycle consistency with null branches), so it is opt-in.
 
     Returns a :class:`TreeRegistration`; ``distance`` is the tree-shape distance (never above ``distance_before``,
     the index-order one).
