@@ -106,3 +106,53 @@ def test_planted_bug_pairs_a_leaf_with_the_shoot_in_its_axil(monkeypatch, bug):
     for name, value in bug.items():
         monkeypatch.setattr(prepare_module, name, value)
     assert scores(a, b)[0] < 1.0
+
+
+def _with_extra(tree: Trees, parent: int, start: np.ndarray, direction: np.ndarray, length: float,
+                label: int) -> Trees:
+    """``tree`` with one more straight branch on branch ``parent``."""
+    branches = [p.numpy() for p in tree.points]
+    return Trees.from_branches([[*branches, _line(start, direction, length)]], [[*tree.parent.tolist(), parent]],
+                               T=32, labels=[[*tree.label.tolist(), label]], dtype=torch.float64)
+
+
+def _positions(tree: Trees) -> dict[int, float]:
+    s = prepare_tree(tree, (1.0, 1.0, 1.0), "nodes").s
+    return {label: float(s[i]) for i, label in enumerate(tree.label.tolist())}
+
+
+@pytest.mark.parametrize("bug", [None, {"NODE_SIBLING": 0.0}])
+def test_spur_on_a_short_stem_is_no_node(monkeypatch, bug):
+    """A 12 mm skeleton spur between nodes 4 and 5 of a 40 mm stem whose leaves are 150 mm long: 30 % of the stem
+    (a node by the stem's length alone), 8 % of the organs around it. The leaves above keep their ranks and every
+    leaf is matched to itself; counted by the stem alone (a planted bug) the spur shifts them by a node."""
+    for name, value in (bug or {}).items():
+        monkeypatch.setattr(prepare_module, name, value)
+    a = plant(4.0, {})
+    b = _with_extra(a, 0, np.array([0.0, 0.0, 22.0]), np.array([1.0, 0.0, 0.3]), 12.0, 99)
+    shift = _positions(b)[61] - _positions(a)[61]
+    if bug:
+        assert shift > 0.5
+    else:
+        assert abs(shift) < 0.05
+        assert scores(a, b) == (1.0, 1.0)
+
+
+@pytest.mark.parametrize("bug", [None, {"AXIS_MIN_WEIGHT": 0.0}])
+def test_leaflets_keep_their_arc_length_fractions(monkeypatch, bug):
+    """A leaf carrying four 20 mm leaflets is no axis (it carries 0.5x its length): its leaflets keep their
+    arc-length fractions (paired leaflets a few % apart come in either order between plants, and a rachis's spurs
+    are long beside it); ranked like a shoot's leaves (a planted bug) they count nodes."""
+    for name, value in (bug or {}).items():
+        monkeypatch.setattr(prepare_module, name, value)
+    tree = plant(30.0, {})
+    leaf = tree.points[1].numpy()
+    for k in range(4):
+        tree = _with_extra(tree, 1, leaf[0] + (leaf[-1] - leaf[0]) * (0.2 + 0.2 * k), np.array([0.0, 1.0, 0.0]),
+                           20.0, 9000 + k)
+    at = _positions(tree)
+    fractions = [at[9000 + k] for k in range(4)]
+    if bug:
+        assert fractions[-1] > 2.0
+    else:
+        assert np.allclose(fractions, [0.2, 0.4, 0.6, 0.8], atol=0.05), fractions

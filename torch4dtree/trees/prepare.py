@@ -2,8 +2,9 @@
 
 ``positions`` (docs/method.md §3) says what a child's place on its parent is: ``"warped"`` its bifurcation
 parameter moved by the parent's warp, ``"arclength"`` its arc length from the parent's base, ``"rank"`` (main
-branch's children) its node rank, the weighted count of nodes below it, ``"nodes"`` its node rank on every branch,
-an axillary shoot half a node above the leaf of its node (two plants of a kind: the leaf or shoot at node n).
+branch's children) its node rank, the weighted count of nodes below it, ``"nodes"`` its node
+rank on the main branch and on every axis (a branch that carries organs), an axillary shoot half a node above the leaf
+of its node, a compound leaf's leaflets their arc-length fractions (two plants of a kind: the leaf or shoot at node n).
 """
 
 from __future__ import annotations
@@ -21,7 +22,8 @@ from .aligned import Lambdas, subtree_sq_norms
 from .matching import order_groups
 from .structures import Trees
 
-__all__ = ["AXIL_OFFSET", "AXIS_CARRIES", "MIN_LENGTH", "NODE_POWER", "NODE_SIGNIFICANT", "PreparedTree",
+__all__ = ["AXIL_OFFSET", "AXIS_CARRIES", "AXIS_MIN_WEIGHT", "MIN_LENGTH", "NODE_POWER", "NODE_SIBLING",
+           "NODE_SIGNIFICANT", "PreparedTree",
            "RANK_NODE_TOL", "RANK_SIGNIFICANT", "child_positions", "prepare_tree"]
 
 # floor of a length used as a divisor: a zero-length branch gives finite positions instead of nan
@@ -31,14 +33,19 @@ RANK_NODE_TOL = 0.02
 # "rank": a node counts 1 - exp(-(l / (RANK_SIGNIFICANT x main branch length))^2) towards the ranks above it, l its
 # largest subtree's total length: a skeleton spur a few % of the stem long barely counts, an organ counts ~1
 RANK_SIGNIFICANT = 0.1
-# "nodes": a node counts 1 - exp(-(l / (NODE_SIGNIFICANT x its parent's length))^NODE_POWER): an organ 9 % of its
-# parent long counts ~1, a spur 3 % long ~0.06
+# "nodes": a node counts (1 - exp(-(l / (NODE_SIGNIFICANT x its parent's length))^NODE_POWER)) x (1 - exp(-(l /
+# (NODE_SIBLING x m))^NODE_POWER)), l its largest subtree's total length, m the median over the parent's nodes of
+# their longest organ's own length: an organ 9 % of its parent and a third of its neighbours long counts ~1, a spur
+# 3 % of its parent ~0.06, and so does a spur a tenth of the organs around it on a short stem
 NODE_SIGNIFICANT = 0.06
+NODE_SIBLING = 0.25
 NODE_POWER = 4.0
-# "nodes": a child that carries more than AXIS_CARRIES times its own length (an axis: a shoot with its leaves, not a
-# compound leaf with its leaflets) sits AXIL_OFFSET of a node above the other organs of its node
+# "nodes": an axis weighs 1 - exp(-(c / (AXIS_CARRIES x its length))^4), c what it carries (a shoot with its leaves,
+# not a compound leaf with its leaflets); it sits AXIL_OFFSET x that weight of a node above the other organs of its
+# node, and only branches weighing at least AXIS_MIN_WEIGHT (and the main branch) have their children ranked
 AXIS_CARRIES = 1.5
 AXIL_OFFSET = 0.5
+AXIS_MIN_WEIGHT = 0.5
 
 
 @dataclass
@@ -62,7 +69,8 @@ def prepare_tree(tree: Trees, lambdas: Lambdas, positions: str = "warped") -> Pr
     ``positions`` (see :func:`child_positions`): ``"warped"``: ``s`` as given; ``"arclength"``: ``s`` as arc-length
     fractions of the parents (the parameters themselves for uniformly resampled trees); ``"rank"``: the main
     branch's children's ``s`` as node ranks (:func:`_node_ranks`), deeper ones as arc-length fractions;
-    ``"nodes"``: every child's ``s`` as its node rank on its parent, axes :data:`AXIL_OFFSET` above their node.
+    ``"nodes"``: the children of the main branch and of every axis as node ranks, axes :data:`AXIL_OFFSET` above
+    their node, the others' as arc-length fractions.
     ``lambdas`` weigh the recursive subtree norms (``norm``, the cost of leaving a subtree unmatched).
 
     Example (a stem with a leaf at 1/3 and a shoot at 2/3 carrying two leaves):
@@ -106,35 +114,48 @@ def _node_ranks(s_arc: np.ndarray, parent: list[int], children: list[list[int]],
                 every_branch: bool = False) -> np.ndarray:
     """``(N,)`` positions: a branch's children as the weighted count of nodes below them on it (siblings of one node
     share a rank); only the main branch's children unless ``every_branch``, the others keep their arc-length
-    fractions ``s_arc (N,)``. With ``every_branch`` an axis (a child carrying more than :data:`AXIS_CARRIES` times
-    its own length) sits :data:`AXIL_OFFSET` of a node above the other organs of its node.
+    fractions ``s_arc (N,)``. With ``every_branch`` the children of every axis too (:func:`_axis_weights` at least
+    :data:`AXIS_MIN_WEIGHT`), an axis sits :data:`AXIL_OFFSET` of a node above the other organs of its node, and a
+    node counts by its size relative to its parent and to the organs of the parent's other nodes.
 
     Why: plants of one kind at different stages share their basal nodes (node k of one is node k of the other),
     while the arc length of node k grows with the internodes below it. ``every_branch`` (plants compared with each
     other): the same holds on side shoots of different lengths, and a leaf is not the shoot in its axil, which the
-    shape terms alone would pair (in SRVF a longer curve is closer than none). Only the main branch between frames
-    of one plant: leaflets and their spurs count differently from day to day (docs/experiments.md).
+    shape terms alone would pair (in SRVF a longer curve is closer than none). A compound leaf's leaflets keep their
+    fractions: paired leaflets a few % apart come in either order and a rachis's spurs are long beside its length; a
+    spur on a short stem is small beside the stem's leaves. Only the main branch between frames of one plant:
+    leaflets and their spurs count differently from day to day (docs/experiments.md).
     """
     total = lengths.astype(np.float64).copy()  # subtree total lengths, children after parents in packed order
     for i in range(len(parent) - 1, 0, -1):
         if parent[i] >= 0:
             total[parent[i]] += total[i]
     out = s_arc.copy()
+    axis = _axis_weights(total, lengths) if every_branch else np.zeros(len(parent))
     for p in (range(len(parent)) if every_branch else range(min(len(parent), 1))):
-        if not children[p]:
-            continue
+        if not children[p] or (parent[p] >= 0 and axis[p] < AXIS_MIN_WEIGHT):
+            continue  # a leaf's leaflets keep their arc-length fractions
         kids = np.asarray(children[p])
-        share, power = (NODE_SIGNIFICANT, NODE_POWER) if every_branch else (RANK_SIGNIFICANT, 2.0)
-        scale = max(share * float(lengths[p]), MIN_LENGTH)
+        groups = [kids[grp] for grp in order_groups(s_arc[kids], RANK_NODE_TOL)]
+        if every_branch:
+            parent_scale = NODE_SIGNIFICANT * float(lengths[p])
+            sibling_scale = NODE_SIBLING * float(np.median([lengths[m].max() for m in groups]))
+            scales, power = (max(parent_scale, MIN_LENGTH), max(sibling_scale, MIN_LENGTH)), NODE_POWER
+        else:
+            scales, power = (max(RANK_SIGNIFICANT * float(lengths[p]), MIN_LENGTH),), 2.0
         below = 0.0
-        for grp in order_groups(s_arc[kids], RANK_NODE_TOL):
-            members = kids[grp]
-            out[members] = below
-            if every_branch:
-                carried = (total[members] - lengths[members]) / np.maximum(AXIS_CARRIES * lengths[members], MIN_LENGTH)
-                out[members] += AXIL_OFFSET * (1.0 - np.exp(-(carried ** 4)))
-            below += 1.0 - math.exp(-((float(total[members].max()) / scale) ** power))
+        for members in groups:
+            out[members] = below + AXIL_OFFSET * axis[members]
+            size = float(total[members].max())
+            below += math.prod(1.0 - math.exp(-((size / scale) ** power)) for scale in scales)
     return out
+
+
+def _axis_weights(total: np.ndarray, lengths: np.ndarray) -> np.ndarray:
+    """``(N,)`` in ``[0, 1)``: how much each branch is an axis, from what it carries (its subtree's total length
+    ``total (N,)`` less its own ``lengths (N,)``) in units of :data:`AXIS_CARRIES` times its own length."""
+    carried = (total - lengths) / np.maximum(AXIS_CARRIES * lengths, MIN_LENGTH)
+    return 1.0 - np.exp(-(carried ** 4))
 
 
 def child_positions(mov: PreparedTree, ref: PreparedTree, a: int, b: int, children: Sequence[int],
