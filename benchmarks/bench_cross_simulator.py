@@ -8,9 +8,11 @@ registered with :func:`torch4dtree.bench.hierarchy.registration_settings` (``--p
 
 Wrong pairs by relation of their labels: ``main`` (a main branch), ``inherited`` (the parents are a wrong pair),
 ``slotXY`` (same parent and node, another slot: ``LL`` two leaves, ``LS`` a leaf and a shoot, ``SS``),
-``nodeXY`` (same parent, another node), ``parent`` / ``level`` (other parents / depths). ``merged``: the scores
-when the organs of one kind at one node are interchangeable (leaves 1 and 2 at a node are told apart by their
-azimuth only, random per plant in these simulators). ``--oracle``: the best matchings a registration could return
+``nodeXY`` (same parent, another node), ``parent`` / ``level`` (other parents / depths). The reported ``P`` / ``R``
+take the organs of one kind at one node as interchangeable (:func:`merge_slots`): the simulators number the leaves
+of a node in an order that geometry does not show (leaf 2's azimuth from leaf 1 is random per plant), so no
+registration can tell them apart across plants; ``by slot`` beside them scores the simulator's slot labels as
+they are. ``--oracle``: the best matchings a registration could return
 on these hierarchies: children of matched branches paired by ``label`` (the ceiling), by ``node`` index, or by
 ``rank`` of occupied nodes (what node ranks can see).
 
@@ -169,8 +171,8 @@ def main() -> None:
                         shown += 1
         p, r = pooled([s for *_, s, _ in res])
         mp_, mr = pooled(merged)
-        print(f"{kind} {a.positions} lp {a.lp} order_tol {a.order_tol}: P {p:.3f} R {r:.3f} (merged slots "
-              f"{mp_:.3f} / {mr:.3f}), {len(res)} registrations, {time.time() - t0:.0f} s; relations "
+        print(f"{kind} {a.positions} lp {a.lp} order_tol {a.order_tol}: P {mp_:.3f} R {mr:.3f} (by slot "
+              f"{p:.3f} / {r:.3f}), {len(res)} registrations, {time.time() - t0:.0f} s; relations "
               f"{dict(rel)}; causes {dict(causes)}", flush=True)
 
 

@@ -23,8 +23,8 @@ from .matching import order_groups
 from .structures import Trees
 
 __all__ = ["AXIL_OFFSET", "AXIS_CARRIES", "AXIS_MIN_WEIGHT", "MIN_LENGTH", "NODE_POWER", "NODE_SIBLING",
-           "NODE_SIGNIFICANT", "PreparedTree",
-           "RANK_NODE_TOL", "RANK_SIGNIFICANT", "child_positions", "prepare_tree"]
+           "NODE_SIGNIFICANT", "PreparedTree", "RANK_NODE_TOL", "RANK_SIGNIFICANT", "SIBLING_POWER", "child_positions",
+           "prepare_tree"]
 
 # floor of a length used as a divisor: a zero-length branch gives finite positions instead of nan
 MIN_LENGTH = 1e-12
@@ -34,12 +34,14 @@ RANK_NODE_TOL = 0.02
 # largest subtree's total length: a skeleton spur a few % of the stem long barely counts, an organ counts ~1
 RANK_SIGNIFICANT = 0.1
 # "nodes": a node counts (1 - exp(-(l / (NODE_SIGNIFICANT x its parent's length))^NODE_POWER)) x (1 - exp(-(l /
-# (NODE_SIBLING x m))^NODE_POWER)), l its largest subtree's total length, m the median over the parent's nodes of
-# their longest organ's own length: an organ 9 % of its parent and a third of its neighbours long counts ~1, a spur
-# 3 % of its parent ~0.06, and so does a spur a tenth of the organs around it on a short stem
+# (NODE_SIBLING x m))^SIBLING_POWER)), l its largest subtree's total length, m the median over the parent's nodes of
+# their longest organ's own length: an organ 9 % of its parent and a quarter of the median organ long counts ~1, a
+# spur 3 % of its parent ~0.06, and so does a spur an eighth of the organs around it on a short stem (the sharp
+# second factor leaves the parent's ordinary organs at 1: soft weights would add up over a stem's many nodes)
 NODE_SIGNIFICANT = 0.06
-NODE_SIBLING = 0.25
+NODE_SIBLING = 0.2
 NODE_POWER = 4.0
+SIBLING_POWER = 8.0
 # "nodes": an axis weighs 1 - exp(-(c / (AXIS_CARRIES x its length))^4), c what it carries (a shoot with its leaves,
 # not a compound leaf with its leaflets); it sits AXIL_OFFSET x that weight of a node above the other organs of its
 # node, and only branches weighing at least AXIS_MIN_WEIGHT (and the main branch) have their children ranked
@@ -116,7 +118,7 @@ def _node_ranks(s_arc: np.ndarray, parent: list[int], children: list[list[int]],
     share a rank); only the main branch's children unless ``every_branch``, the others keep their arc-length
     fractions ``s_arc (N,)``. With ``every_branch`` the children of every axis too (:func:`_axis_weights` at least
     :data:`AXIS_MIN_WEIGHT`), an axis sits :data:`AXIL_OFFSET` of a node above the other organs of its node, and a
-    node counts by its size relative to its parent and to the organs of the parent's other nodes.
+    node counts by its size relative to its parent and to the organs at the neighbouring nodes.
 
     Why: plants of one kind at different stages share their basal nodes (node k of one is node k of the other),
     while the arc length of node k grows with the internodes below it. ``every_branch`` (plants compared with each
@@ -137,17 +139,17 @@ def _node_ranks(s_arc: np.ndarray, parent: list[int], children: list[list[int]],
             continue  # a leaf's leaflets keep their arc-length fractions
         kids = np.asarray(children[p])
         groups = [kids[grp] for grp in order_groups(s_arc[kids], RANK_NODE_TOL)]
-        if every_branch:
-            parent_scale = NODE_SIGNIFICANT * float(lengths[p])
-            sibling_scale = NODE_SIBLING * float(np.median([lengths[m].max() for m in groups]))
-            scales, power = (max(parent_scale, MIN_LENGTH), max(sibling_scale, MIN_LENGTH)), NODE_POWER
-        else:
-            scales, power = (max(RANK_SIGNIFICANT * float(lengths[p]), MIN_LENGTH),), 2.0
+        share, power = (NODE_SIGNIFICANT, NODE_POWER) if every_branch else (RANK_SIGNIFICANT, 2.0)
+        scale = max(share * float(lengths[p]), MIN_LENGTH)
+        organ = max(NODE_SIBLING * float(np.median([lengths[m].max() for m in groups])), MIN_LENGTH)
         below = 0.0
         for members in groups:
             out[members] = below + AXIL_OFFSET * axis[members]
             size = float(total[members].max())
-            below += math.prod(1.0 - math.exp(-((size / scale) ** power)) for scale in scales)
+            weight = 1.0 - math.exp(-((size / scale) ** power))
+            if every_branch:  # and beside the parent's organs
+                weight *= 1.0 - math.exp(-((size / organ) ** SIBLING_POWER))
+            below += weight
     return out
 
 
