@@ -9,7 +9,7 @@ registered with :func:`torch4dtree.bench.hierarchy.registration_settings` (``--p
 Wrong pairs by relation of their labels: ``main`` (a main branch), ``inherited`` (the parents are a wrong pair),
 ``slotXY`` (same parent and node, another slot: ``LL`` two leaves, ``LS`` a leaf and a shoot, ``SS``),
 ``nodeXY`` (same parent, another node), ``parent`` / ``level`` (other parents / depths). The reported ``P`` / ``R``
-take the organs of one kind at one node as interchangeable (:func:`merge_slots`): the simulators number the leaves
+take the organs of one kind at one node as interchangeable (:func:`merged_scores`): the simulators number the leaves
 of a node in an order that geometry does not show (leaf 2's azimuth from leaf 1 is random per plant), so no
 registration can tell them apart across plants; ``by slot`` beside them scores the simulator's slot labels as
 they are. ``--oracle``: the best matchings a registration could return
@@ -32,7 +32,7 @@ import torch
 
 from torch4dtree.bench.hierarchy import registration_settings
 from torch4dtree.bench.identities import score_pair
-from torch4dtree.data.truth import identity_scores
+from torch4dtree.data.truth import DEFAULT_IGNORE, IdentityScores, identity_scores
 from torch4dtree.io import LoadOptions, read_swc_skeleton, read_tree
 from torch4dtree.io.dataset import frame_times, sequence_folders
 from torch4dtree.trees import Trees
@@ -41,11 +41,13 @@ from torch4dtree.trees.registration import register_trees
 _DATA: dict = {}
 
 
-def load(root: Path, kind: str, n: int, frames: list[int], hierarchy: str) -> dict:
-    """``{(plant, frame): (tree, (xyz, parent, organ))}`` of the first ``n`` plants of ``root/kind``."""
+def load(root: Path, kind: str, plants: list[int], frames: list[int], hierarchy: str) -> dict:
+    """``{(k, frame): (tree, (xyz, parent, organ))}`` of the plants numbered ``plants`` (in name order) of
+    ``root/kind``, ``k`` their place in ``plants``."""
     opts = LoadOptions(labels_from_type=True, hierarchy=hierarchy)
     out = {}
-    for p, plant in enumerate(sequence_folders(root / kind)[:n]):
+    folders = sequence_folders(root / kind)
+    for p, plant in enumerate(folders[i] for i in plants):
         files = [f for f, _ in frame_times(plant)]
         for j in frames:
             sk = read_swc_skeleton(files[j])
@@ -53,7 +55,7 @@ def load(root: Path, kind: str, n: int, frames: list[int], hierarchy: str) -> di
     return out
 
 
-def _init(root: Path, kind: str, n: int, frames: list[int], hierarchy: str, kw: dict) -> None:
+def _init(root: Path, kind: str, n: list[int], frames: list[int], hierarchy: str, kw: dict) -> None:
     torch.set_num_threads(1)
     _DATA.update(data=load(root, kind, n, frames, hierarchy), kw=kw)
 
@@ -90,6 +92,23 @@ def merge_slots(label: int) -> int:
     for k in range(3, len(d), 3):
         d[k] = "1" if d[k] < "5" else "5"
     return int("".join(d))
+
+
+def merged_scores(matches: list[tuple[int, int]], la: list[int], lb: list[int]) -> IdentityScores:
+    """Precision and recall with every label through :func:`merge_slots`, counted as multisets: the two leaves of a
+    node are two organs of one kind, each found when a leaf of that node is matched to a leaf of that node (recall:
+    per merged label, the right pairs up to the smaller of its two counts, over the sum of those counts)."""
+    ma, mb = [merge_slots(v) for v in la], [merge_slots(v) for v in lb]
+    skip = set(DEFAULT_IGNORE)
+    valid = [(ma[i], mb[j]) for i, j in matches if la[i] not in skip and lb[j] not in skip]
+    ca = collections.Counter(v for v, raw in zip(ma, la) if raw not in skip)
+    cb = collections.Counter(v for v, raw in zip(mb, lb) if raw not in skip)
+    right = collections.Counter(a for a, b in valid if a == b)
+    common = {v: min(ca[v], cb[v]) for v in ca.keys() & cb.keys()}
+    n_common = sum(common.values())
+    found = sum(min(right[v], n) for v, n in common.items())
+    return IdentityScores(sum(a == b for a, b in valid) / len(valid) if valid else float("nan"),
+                          found / n_common if n_common else float("nan"), len(valid), n_common)
 
 
 def _keyed(tree: Trees, i: int, mode: str) -> dict:
@@ -132,6 +151,7 @@ def main() -> None:
     ap.add_argument("--lp", type=float, default=default["lambdas"][2])
     ap.add_argument("--order-tol", type=float, default=default["order_tol"], help="-1: any order")
     ap.add_argument("--plants", type=int, default=5)
+    ap.add_argument("--select", default="", help="plant numbers instead of the first --plants, e.g. 0,2,3,8,9")
     ap.add_argument("--frames", default="3,6,9")
     ap.add_argument("--hierarchy", default="straightest")
     ap.add_argument("--processes", type=int, default=2)
@@ -140,9 +160,10 @@ def main() -> None:
     a = ap.parse_args()
     root, frames = Path(a.root), [int(x) for x in a.frames.split(",")]
     kw = registration_settings(a.lp, a.positions, None if a.order_tol < 0 else a.order_tol)
-    tasks = [(x, y, j) for j in frames for x, y in itertools.combinations(range(a.plants), 2)]
+    chosen = [int(x) for x in a.select.split(",")] if a.select else list(range(a.plants))
+    tasks = [(x, y, j) for j in frames for x, y in itertools.combinations(range(len(chosen)), 2)]
     for kind in a.kinds:
-        data = load(root, kind, a.plants, frames, a.hierarchy)
+        data = load(root, kind, chosen, frames, a.hierarchy)
         if a.oracle:
             for mode in ("label", "node", "rank"):
                 sc = [identity_scores(oracle(data[x, j][0], data[y, j][0], mode), data[x, j][0].label.tolist(),
@@ -151,7 +172,7 @@ def main() -> None:
             continue
         t0 = time.time()
         with mp.get_context("spawn").Pool(a.processes, initializer=_init,
-                                          initargs=(root, kind, a.plants, frames, a.hierarchy, kw)) as pool:
+                                          initargs=(root, kind, chosen, frames, a.hierarchy, kw)) as pool:
             res = pool.map(_job, tasks, chunksize=1)
         rel: collections.Counter = collections.Counter()
         causes: collections.Counter = collections.Counter()
@@ -161,7 +182,7 @@ def main() -> None:
             la, lb, pa, pb = ta.label.tolist(), tb.label.tolist(), ta.parent.tolist(), tb.parent.tolist()
             partner = dict(matches)
             causes.update(c.to_dict())
-            merged.append(identity_scores(matches, [merge_slots(v) for v in la], [merge_slots(v) for v in lb]))
+            merged.append(merged_scores(matches, la, lb))
             for i, k in matches:
                 if la[i] != lb[k]:
                     r = relation(la, lb, pa, pb, i, k, partner)
