@@ -160,10 +160,10 @@ def test_checkpoint_keeps_the_setting_and_old_ones_load_as_warped(plants, tmp_pa
 
 
 def test_default_cross_registration_keeps_organs_and_their_order():
-    """Bean plants whose leaves look alike: the default (node rank, lp 12, children in their order along the
-    parent) matches every slot of three pairs to its own organ, and the main branch's matched leaves keep their
-    order up the stem; the previous default (warped, lp 10, any order) matched leaf 3 to leaf 6 and the like
-    (precision 0.03 / 0.07 / 0.21 on these pairs, 1.00 with the default)."""
+    """Bean plants whose leaves look alike: the default (node ranks on the main branch, lp 12, children in their
+    order along the parent) matches every slot of three pairs to its own organ, and the main branch's matched
+    leaves keep their order up the stem; warped positions, lp 10 and any order match leaf 3 to leaf 6
+    and the like (precision 0.03 / 0.07 / 0.21 on these pairs, 1.00 with the default)."""
     from torch4dtree.data import synthetic_dataset
     from torch4dtree.temporal import register_sequence
 

@@ -1,6 +1,7 @@
 """Branch identities across plants of a kind with ``"nodes"`` positions (:func:`torch4dtree.trees.prepare.
-prepare_tree`: node ranks on every branch, an axillary shoot half a node above the leaf of its node) and lp 100, the
-setting measured on simulator plants (docs/experiments.md, "Identities across plants on simulator crops").
+prepare_tree`: node ranks on the stem and every shoot, an axillary shoot half a node above the leaf of its node,
+leaflets at their arc-length fractions) and lp 100, the setting measured on simulator plants (docs/experiments.md,
+"Identities across plants on simulator crops").
 
 Two plants of one kind carry a leaf at every node of the stem and of each side shoot, and side shoots at some nodes
 only, with internodes of different lengths: "the same organ" is the leaf (or shoot) at node n of the same parent.
