@@ -122,23 +122,6 @@ def _positions(tree: Trees) -> dict[int, float]:
     return {label: float(s[i]) for i, label in enumerate(tree.label.tolist())}
 
 
-@pytest.mark.parametrize("bug", [None, {"NODE_SIBLING": 0.0}])
-def test_spur_on_a_short_stem_is_no_node(monkeypatch, bug):
-    """A 12 mm skeleton spur between nodes 4 and 5 of a 40 mm stem whose leaves are 150 mm long: 30 % of the stem
-    (a node by the stem's length alone), 8 % of the organs around it. The leaves above keep their ranks and every
-    leaf is matched to itself; counted by the stem alone (a planted bug) the spur shifts them by a node."""
-    for name, value in (bug or {}).items():
-        monkeypatch.setattr(prepare_module, name, value)
-    a = plant(4.0, {})
-    b = _with_extra(a, 0, np.array([0.0, 0.0, 22.0]), np.array([1.0, 0.0, 0.3]), 12.0, 99)
-    shift = _positions(b)[61] - _positions(a)[61]
-    if bug:
-        assert shift > 0.5
-    else:
-        assert abs(shift) < 0.05
-        assert scores(a, b) == (1.0, 1.0)
-
-
 @pytest.mark.parametrize("bug", [None, {"AXIS_MIN_WEIGHT": 0.0}])
 def test_leaflets_keep_their_arc_length_fractions(monkeypatch, bug):
     """A leaf carrying four 20 mm leaflets is no axis (it carries 0.5x its length): its leaflets keep their

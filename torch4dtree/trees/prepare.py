@@ -22,9 +22,8 @@ from .aligned import Lambdas, subtree_sq_norms
 from .matching import order_groups
 from .structures import Trees
 
-__all__ = ["AXIL_OFFSET", "AXIS_CARRIES", "AXIS_MIN_WEIGHT", "MIN_LENGTH", "NODE_POWER", "NODE_SIBLING",
-           "NODE_SIGNIFICANT", "PreparedTree", "RANK_NODE_TOL", "RANK_SIGNIFICANT", "SIBLING_POWER", "child_positions",
-           "prepare_tree"]
+__all__ = ["AXIL_OFFSET", "AXIS_CARRIES", "AXIS_MIN_WEIGHT", "MIN_LENGTH", "NODE_POWER", "NODE_SIGNIFICANT",
+           "PreparedTree", "RANK_NODE_TOL", "RANK_SIGNIFICANT", "child_positions", "prepare_tree"]
 
 # floor of a length used as a divisor: a zero-length branch gives finite positions instead of nan
 MIN_LENGTH = 1e-12
@@ -33,15 +32,10 @@ RANK_NODE_TOL = 0.02
 # "rank": a node counts 1 - exp(-(l / (RANK_SIGNIFICANT x main branch length))^2) towards the ranks above it, l its
 # largest subtree's total length: a skeleton spur a few % of the stem long barely counts, an organ counts ~1
 RANK_SIGNIFICANT = 0.1
-# "nodes": a node counts (1 - exp(-(l / (NODE_SIGNIFICANT x its parent's length))^NODE_POWER)) x (1 - exp(-(l /
-# (NODE_SIBLING x m))^SIBLING_POWER)), l its largest subtree's total length, m the median over the parent's nodes of
-# their longest organ's own length: an organ 9 % of its parent and a quarter of the median organ long counts ~1, a
-# spur 3 % of its parent ~0.06, and so does a spur an eighth of the organs around it on a short stem (the sharp
-# second factor leaves the parent's ordinary organs at 1: soft weights would add up over a stem's many nodes)
+# "nodes": a node counts 1 - exp(-(l / (NODE_SIGNIFICANT x its parent's length))^NODE_POWER): an organ 9 % of its
+# parent long counts ~1, a spur 3 % long ~0.06
 NODE_SIGNIFICANT = 0.06
-NODE_SIBLING = 0.2
 NODE_POWER = 4.0
-SIBLING_POWER = 8.0
 # "nodes": an axis weighs 1 - exp(-(c / (AXIS_CARRIES x its length))^4), c what it carries (a shoot with its leaves,
 # not a compound leaf with its leaflets); it sits AXIL_OFFSET x that weight of a node above the other organs of its
 # node, and only branches weighing at least AXIS_MIN_WEIGHT (and the main branch) have their children ranked
@@ -117,16 +111,15 @@ def _node_ranks(s_arc: np.ndarray, parent: list[int], children: list[list[int]],
     """``(N,)`` positions: a branch's children as the weighted count of nodes below them on it (siblings of one node
     share a rank); only the main branch's children unless ``every_branch``, the others keep their arc-length
     fractions ``s_arc (N,)``. With ``every_branch`` the children of every axis too (:func:`_axis_weights` at least
-    :data:`AXIS_MIN_WEIGHT`), an axis sits :data:`AXIL_OFFSET` of a node above the other organs of its node, and a
-    node counts by its size relative to its parent and to the organs at the neighbouring nodes.
+    :data:`AXIS_MIN_WEIGHT`), and an axis sits :data:`AXIL_OFFSET` of a node above the other organs of its node.
 
     Why: plants of one kind at different stages share their basal nodes (node k of one is node k of the other),
     while the arc length of node k grows with the internodes below it. ``every_branch`` (plants compared with each
     other): the same holds on side shoots of different lengths, and a leaf is not the shoot in its axil, which the
     shape terms alone would pair (in SRVF a longer curve is closer than none). A compound leaf's leaflets keep their
-    fractions: paired leaflets a few % apart come in either order and a rachis's spurs are long beside its length; a
-    spur on a short stem is small beside the stem's leaves. Only the main branch between frames of one plant:
-    leaflets and their spurs count differently from day to day (docs/experiments.md).
+    fractions: paired leaflets a few % apart come in either order and a rachis's spurs are long beside its length.
+    Only the main branch between frames of one plant: leaflets and their spurs count differently from day to day
+    (docs/experiments.md).
     """
     total = lengths.astype(np.float64).copy()  # subtree total lengths, children after parents in packed order
     for i in range(len(parent) - 1, 0, -1):
@@ -141,15 +134,10 @@ def _node_ranks(s_arc: np.ndarray, parent: list[int], children: list[list[int]],
         groups = [kids[grp] for grp in order_groups(s_arc[kids], RANK_NODE_TOL)]
         share, power = (NODE_SIGNIFICANT, NODE_POWER) if every_branch else (RANK_SIGNIFICANT, 2.0)
         scale = max(share * float(lengths[p]), MIN_LENGTH)
-        organ = max(NODE_SIBLING * float(np.median([lengths[m].max() for m in groups])), MIN_LENGTH)
         below = 0.0
         for members in groups:
             out[members] = below + AXIL_OFFSET * axis[members]
-            size = float(total[members].max())
-            weight = 1.0 - math.exp(-((size / scale) ** power))
-            if every_branch:  # and beside the parent's organs
-                weight *= 1.0 - math.exp(-((size / organ) ** SIBLING_POWER))
-            below += weight
+            below += 1.0 - math.exp(-((float(total[members].max()) / scale) ** power))
     return out
 
 
