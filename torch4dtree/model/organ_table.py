@@ -227,6 +227,8 @@ class OrganLinks:
             organ (:func:`organ_links`).
         equivalent: ``(R, P)`` the organ of each plant that stands in for each organ (-1: none): the main branch
             for the main branch, else among the children of the parent's equivalent the nearest in ``features``.
+        landmark: ``(R,)`` whether an organ is at least :data:`LANDMARK_SHARE` of its largest sibling: a small organ
+            (a bud, a leaf just emerged) has many look-alikes on a parent, so it is a poor landmark to match by.
     """
 
     plant: np.ndarray
@@ -235,6 +237,7 @@ class OrganLinks:
     n_kids: np.ndarray
     features: np.ndarray
     equivalent: np.ndarray
+    landmark: np.ndarray
 
     def nearest_kid(self, organ: int, of: int) -> int:
         """The rank among ``of``'s children of the one nearest to organ ``organ`` in ``features`` (-1: none)."""
@@ -249,7 +252,9 @@ class OrganLinks:
 MATCH_CHUNK = 256
 # the weights of place, emergence and log length (each in standard deviations) in matching organs of two plants:
 # place first, so that a small organ stands in for the organ at its place rather than for a small one elsewhere
-MATCH_WEIGHTS = (3.0, 1.0, 1.0)
+MATCH_WEIGHTS = (6.0, 1.0, 0.5)
+# an organ at least this share of its largest sibling's length is a landmark (OrganLinks.landmark)
+LANDMARK_SHARE = 0.1
 
 
 def organ_links(record: Tensor, key_parent: Tensor, s: Tensor, growth: Tensor, log_length: Tensor) -> OrganLinks:
@@ -308,4 +313,9 @@ def organ_links(record: Tensor, key_parent: Tensor, s: Tensor, growth: Tensor, l
             best = dist.argmin(-1)
             pick = np.take_along_axis(cand, best[..., None], -1)[..., 0]
             equivalent[rs] = np.where(np.isfinite(dist.min(-1)), pick, -1)
-    return OrganLinks(plant=plant, parent=parent, kids=kids, n_kids=n_kids, features=features, equivalent=equivalent)
+    length = np.exp(log_length.numpy())
+    largest = np.zeros(R)
+    np.maximum.at(largest, np.maximum(parent, 0), np.where(side, length, 0.0))
+    landmark = ~side | (length >= LANDMARK_SHARE * largest[np.maximum(parent, 0)])
+    return OrganLinks(plant=plant, parent=parent, kids=kids, n_kids=n_kids, features=features, equivalent=equivalent,
+                      landmark=landmark)

@@ -277,7 +277,7 @@ class OrganModel(nn.Module):
         uniforms ``u`` (:meth:`_draws`) and kernel weights ``w (P,)``. Each organ's children are read along one
         training organ's children; a switch moves to the organ standing in for it in another plant
         (:class:`~torch4dtree.model.organ_table.OrganLinks`) and goes on after the child that stands in for the last
-        one taken, so switching neither repeats nor skips an organ."""
+        one taken, so switching neither repeats nor skips an organ; it waits for a landmark to match by."""
         children, record, az, parent_az = plan
         K = len(self.keys)
         persistence = self.settings.persistence
@@ -293,7 +293,7 @@ class OrganModel(nn.Module):
             cdf = np.cumsum(near)
             cur, i, last = source, 0, -1
             for c in children[k]:
-                if u[3 + c] >= persistence and cdf[-1] > 0:
+                if u[3 + c] >= persistence and cdf[-1] > 0 and (last < 0 or links.landmark[last]):
                     q = min(int(np.searchsorted(cdf, u[3 + K + c] * cdf[-1], side="right")), len(w) - 1)
                     if int(standing[q]) != cur:
                         cur = int(standing[q])
@@ -330,27 +330,29 @@ def pick_donors(weights: Tensor, u: Tensor) -> Tensor:
 
 
 def carry_parents(sizes: Tensor, key_parent: Tensor, depth: Sequence[int]) -> Tensor:
-    """Organ sizes ``(B, K, G)`` (0: absent) with every parent kept at its last size after it was last seen while one
-    of its children is there. Organs copied from different training plants keep their own timing, so a child whose
-    parent's plant had lost that parent (a tracking gap, a shed organ) would otherwise be left out of the frame; a
-    child whose parent has not appeared yet stays out until it does (no organ grows before its parent).
+    """Organ sizes ``(B, K, G)`` (0: absent) with every parent present wherever one of its children is: at its last
+    size after it was last seen, at its first size before it appeared. Organs copied from different training plants
+    keep their own timing, so a child whose parent's plant had lost that parent (a tracking gap, a shed organ), or
+    grew it later, would otherwise be left out of the frame (a sample would lag the plants it copies).
     ``key_parent (K,)`` as in :func:`assemble_frames`, ``depth`` each key's depth (0: the main branch). Returns a new
     tensor.
 
     Example:
         >>> sizes = torch.tensor([[[1.0, 2.0, 3.0], [0.0, 2.0, 0.0], [1.0, 1.0, 1.0]]])
         >>> carry_parents(sizes, torch.tensor([-1, 0, 1]), [0, 1, 2])[0, 1].tolist()
-        [0.0, 2.0, 2.0]
+        [2.0, 2.0, 2.0]
     """
     depth_t = torch.as_tensor(list(depth), dtype=torch.long)
     out = sizes.clone()
     for d in range(max(depth, default=0), 0, -1):  # deepest first: a carried child carries its parent
         children = torch.nonzero(depth_t == d).reshape(-1)
         need = torch.zeros_like(out).index_add_(1, key_parent[children], (out[:, children] > 0).to(out.dtype)) > 0
-        held = torch.cummax(out, 2).values  # the last size after it was last seen (0 before it appears)
-        fill = need & (out <= 0) & (held > 0)
+        fill = need & (out <= 0)
         if bool(fill.any()):
-            out = torch.where(fill, held, out)
+            held = torch.cummax(out, 2).values  # the last size after it was last seen (0 before it appears)
+            first = torch.where(out > 0, out, torch.inf).min(2, keepdim=True).values  # its first (smallest) size
+            first = torch.where(torch.isfinite(first), first, 0.0)  # never there at all: stays out
+            out = torch.where(fill, torch.where(held > 0, held, first), out)
     return out
 
 
