@@ -221,10 +221,11 @@ class OrganLinks:
     Attributes:
         plant: ``(R,)`` each organ's plant.
         parent: ``(R,)`` each organ's parent organ in its plant (-1: the main branch).
-        kids: ``(R, C)`` each organ's children in rank order (-1 padded); ``n_kids (R,)`` how many.
-        features: ``(R, 3)`` place on the parent (attachment share at the last age), emergence age and log
-            length, standardised and weighted (:data:`MATCH_WEIGHTS`): what makes organs of two plants the same
-            organ (:func:`organ_links`).
+        kids: ``(R, C)`` each organ's children in order of place (-1 padded; the organs of one node in one order
+            in every plant: fewer descendants, then shorter, first); ``n_kids (R,)`` how many.
+        features: ``(R, 4)`` place on the parent (attachment share at the last age), emergence age, log length and
+            log(1 + descendants), standardised and weighted (:data:`MATCH_WEIGHTS`): what makes organs of two plants
+            the same organ (:func:`organ_links`).
         equivalent: ``(R, P)`` the organ of each plant that stands in for each organ (-1: none): the main branch
             for the main branch, else among the children of the parent's equivalent the nearest in ``features``.
         landmark: ``(R,)`` whether an organ is at least :data:`LANDMARK_SHARE` of its largest sibling: a small organ
@@ -250,9 +251,10 @@ class OrganLinks:
 
 # organs of other plants matched to an organ, at most this many at once (bounds the matching's memory)
 MATCH_CHUNK = 256
-# the weights of place, emergence and log length (each in standard deviations) in matching organs of two plants:
-# place first, so that a small organ stands in for the organ at its place rather than for a small one elsewhere
-MATCH_WEIGHTS = (6.0, 1.0, 0.5)
+# the weights of place, emergence, log length and log(1 + descendants) (each in standard deviations) in matching
+# organs of two plants: place first, so that a small organ stands in for the organ at its place rather than for a
+# small one elsewhere; descendants tell a side shoot from the leaf at its node
+MATCH_WEIGHTS = (6.0, 1.0, 0.5, 1.0)
 # an organ at least this share of its largest sibling's length is a landmark (OrganLinks.landmark)
 LANDMARK_SHARE = 0.1
 
@@ -263,9 +265,9 @@ def organ_links(record: Tensor, key_parent: Tensor, s: Tensor, growth: Tensor, l
     ``growth (R, G)``, ``log_length (R,)``.
 
     Ranks alone do not name the same organ in two plants: one small extra organ (a bud, a shoot at a leaf's node)
-    shifts the ranks of all organs above it. An organ is matched instead by its place, its emergence and its size,
-    each standardised over all organs but the main branches and weighted by :data:`MATCH_WEIGHTS` (docs/method.md §5,
-    generative models).
+    shifts the ranks of all organs above it. An organ is matched instead by its place, its emergence, its size and
+    how much grows on it, each standardised over all organs but the main branches and weighted by
+    :data:`MATCH_WEIGHTS` (docs/method.md §5, generative models).
 
     Example:
         >>> record = torch.tensor([[0, 1, -1], [2, 3, 4]])  # plant 1 has an extra small organ first
@@ -287,21 +289,27 @@ def organ_links(record: Tensor, key_parent: Tensor, s: Tensor, growth: Tensor, l
     for k in range(K):  # keys are sorted parents first
         depth[k] = depth[key_parent[k]] + 1 if key_parent[k] >= 0 else 0
     n_kids = np.bincount(parent[parent >= 0], minlength=R)
-    kids = np.full((R, max(int(n_kids.max(initial=0)), 1)), -1, dtype=np.int64)
-    order = np.lexsort((key, parent))  # by parent, then by key (rank order)
-    order = order[parent[order] >= 0]
-    start = np.concatenate([[0], np.cumsum(n_kids)[:-1]])
-    kids[parent[order], np.arange(len(order)) - start[parent[order]]] = order
+    organ_depth = depth[key]
+    below = np.zeros(R)  # descendants of each organ (a leaf has none, a side shoot many)
+    for d in range(int(organ_depth.max(initial=0)), 0, -1):
+        at = np.nonzero(organ_depth == d)[0]
+        np.add.at(below, parent[at], below[at] + 1.0)
     G = growth.shape[1]
     onset = (growth > 0).double().argmax(1).numpy() / max(G - 1, 1)
-    raw = np.stack([s[:, -1].numpy(), onset, log_length.numpy()], 1)
+    raw = np.stack([s[:, -1].numpy(), onset, log_length.numpy(), np.log1p(below)], 1)
+    # children in order of place, then (organs of one node) fewer descendants, then shorter first: one order for the
+    # organs of a node in every plant
+    order = np.lexsort((raw[:, 2], raw[:, 3], raw[:, 0], parent))
+    order = order[parent[order] >= 0]
+    kids = np.full((R, max(int(n_kids.max(initial=0)), 1)), -1, dtype=np.int64)
+    start = np.concatenate([[0], np.cumsum(n_kids)[:-1]])
+    kids[parent[order], np.arange(len(order)) - start[parent[order]]] = order
     side = parent >= 0
-    scale = raw[side].std(0) if side.sum() > 1 else np.ones(3)
+    scale = raw[side].std(0) if side.sum() > 1 else np.ones(raw.shape[1])
     features = raw / np.where(scale > 0, scale, 1.0) * np.asarray(MATCH_WEIGHTS)
     equivalent = np.full((R, P), -1, dtype=np.int64)
     mains = np.nonzero(~side)[0]
     equivalent[mains] = rec[:, 0][None]
-    organ_depth = depth[key]
     for d in range(1, int(organ_depth.max(initial=0)) + 1):
         at = np.nonzero(organ_depth == d)[0]
         for lo in range(0, len(at), MATCH_CHUNK):

@@ -289,7 +289,7 @@ class OrganModel(nn.Module):
                 continue
             here = az[source] + turn[k]
             standing = links.equivalent[source]  # (P,)
-            near = np.where(standing >= 0, w, 0.0)
+            near = np.where((standing >= 0) & (links.n_kids[standing] > 0), w, 0.0)  # stand-ins with children
             cdf = np.cumsum(near)
             cur, i, last = source, 0, -1
             for c in children[k]:
