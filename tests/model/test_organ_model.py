@@ -149,7 +149,7 @@ def test_organ_checkpoints_fail_clearly(model: OrganModel, tmp_path: Path) -> No
 def test_organs_grow_and_vanish_no_more_than_in_training(model: OrganModel) -> None:
     events = seen = 0
     for p in model.sample(12, generator=torch.Generator().manual_seed(2)):
-        lengths = torch.zeros(len(p), len(model.keys), dtype=torch.float64)  # (frames, keys)
+        lengths = torch.zeros(len(p), len(model.sample_keys()[0]), dtype=torch.float64)  # (frames, keys)
         for j in range(len(p)):
             f = p.frames[j]
             lengths[j, f.label] = f.branch_lengths().to(torch.float64)

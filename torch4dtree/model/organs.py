@@ -106,6 +106,7 @@ class OrganModel(nn.Module):
         self.register_buffer("duration", torch.tensor(1.0, dtype=f64))
         self.report_: dict[str, Any] = {}
         self._links: OrganLinks | None = None
+        self._reach: tuple[list[tuple[int, ...]], Tensor] | None = None
 
     # ------------------------------------------------------------------------ state
     def get_extra_state(self) -> dict[str, Any]:
@@ -122,7 +123,7 @@ class OrganModel(nn.Module):
         for name in list(self._buffers):
             if name in state_dict:
                 self._buffers[name] = torch.empty_like(state_dict[name])
-        self._links = None
+        self._links = self._reach = None
         return super().load_state_dict(state_dict, strict, assign)
 
     def save(self, path: str | Path, config: dict[str, Any] | None = None, overwrite: bool = False) -> str:
@@ -166,7 +167,7 @@ class OrganModel(nn.Module):
         self.shape, self.growth, self.s = table.shape, table.growth, table.s
         self.azimuth, self.parent_azimuth = table.azimuth, table.parent_azimuth
         self.summary, self.ages = summary, table.ages
-        self._links = None
+        self._links = self._reach = None
         starts = torch.tensor([float(s.times[0]) for s in sequences], dtype=torch.float64)
         spans = torch.tensor([float(s.times[-1] - s.times[0]) for s in sequences], dtype=torch.float64)
         self.time_start, self.duration = starts.mean(), spans.mean().clamp_min(1e-12)
@@ -187,7 +188,8 @@ class OrganModel(nn.Module):
         return torch.randint(0, 2**31 - 1, (n, 1), generator=generator, dtype=torch.long).to(torch.float64)
 
     def decode(self, z: Tensor) -> list[TreeSequence]:
-        """``z (B, 1)`` seeds (:meth:`sample_coefficients`) -> ``B`` 4D trees (``label`` = botanical key index).
+        """``z (B, 1)`` seeds (:meth:`sample_coefficients`) -> ``B`` 4D trees (``label`` = index of the organ's
+        botanical key in :meth:`sample_keys`).
 
         Plants are grown together, :data:`DECODE_CHUNK` at a time (one tensor operation per key for the whole chunk,
         not per plant); each draws its random numbers from its own seed, so a plant does not depend on the others.
@@ -224,9 +226,9 @@ class OrganModel(nn.Module):
 
     def _draws(self, seeds: list[int]) -> tuple[Tensor, Tensor]:
         """Each plant's random numbers from its own seed: uniforms ``(B, 3 + 2K)`` (latent's plant, first donor,
-        turn, then per key the switch and the donor's pick) and standard normals ``(B, LATENT + K)`` (latent noise,
-        then per key the length jitter)."""
-        K = len(self.keys)
+        turn, then per key of :meth:`sample_keys` the switch and the donor's pick) and standard normals
+        ``(B, LATENT + K)`` (latent noise, then per key the length jitter)."""
+        K = len(self.sample_keys()[0])
         u, n = [], []
         for seed in seeds:
             g = torch.Generator().manual_seed(seed)
@@ -241,6 +243,36 @@ class OrganModel(nn.Module):
             self._links = organ_links(self.record, self.key_parent, self.s, self.growth, self.log_length)
         return self._links
 
+    def sample_keys(self) -> tuple[list[tuple[int, ...]], Tensor]:
+        """The botanical keys a sample's organs can take and each one's parent key ``(K',)``: the training keys
+        (:attr:`keys`, in order) then, parents first, every further ``k``-th child of a key up to the most children
+        an organ at that depth has in the training plants (a sample reads a parent's children along a training
+        organ that may sit at another rank). A sample's ``label`` indexes this list."""
+        self.check_fitted()
+        if self._reach is None:
+            links = self.links()
+            depth = np.array([len(k) for k in self.keys])
+            organ_depth = np.zeros(len(links.plant), dtype=np.int64)
+            organ_depth[self.record[self.record >= 0].numpy()] = depth[
+                torch.nonzero(self.record >= 0, as_tuple=True)[1].numpy()]
+            most = np.zeros(int(depth.max()) + 1, dtype=np.int64)
+            np.maximum.at(most, organ_depth, links.n_kids)
+            keys = list(self.keys)
+            index = {k: i for i, k in enumerate(keys)}
+            parent = self.key_parent.tolist()
+            j = 0
+            while j < len(keys):  # parents first: a key's children are appended after it
+                key = keys[j]
+                for r in range(int(most[len(key)])):
+                    child = key + (r,)
+                    if child not in index:
+                        index[child] = len(keys)
+                        keys.append(child)
+                        parent.append(j)
+                j += 1
+            self._reach = (keys, torch.tensor(parent, dtype=torch.long))
+        return self._reach
+
     def _grow(self, seeds: list[int]) -> tuple[Tensor, Tensor, Tensor, Tensor]:
         """Plants from their seeds (module doc): latent, then organs parent by parent (topology, donors, sizes,
         rotations). Returns ``chosen (B, K)`` the training organ each key copies (-1: absent), ``length (B, K)``
@@ -250,7 +282,7 @@ class OrganModel(nn.Module):
         plant = (u[:, 0] * P).long().clamp(max=P - 1)
         eps = noise[:, :LATENT].clamp(-self.settings.c, self.settings.c)
         w = self.kernel_weights(self.summary[plant] + self.settings.bandwidth * self.summary.std(0) * eps)  # (B, P)
-        chosen = np.full((len(seeds), len(self.keys)), -1, dtype=np.int64)
+        chosen = np.full((len(seeds), len(self.sample_keys()[0])), -1, dtype=np.int64)
         turn = np.zeros(chosen.shape)
         links, walk = self.links(), self._walk_plan()
         for b in range(len(seeds)):
@@ -263,11 +295,13 @@ class OrganModel(nn.Module):
         return chosen_t, torch.where(present, log_len.exp(), 0.0), torch.from_numpy(turn), s_of
 
     def _walk_plan(self) -> tuple[list[list[int]], np.ndarray, np.ndarray, np.ndarray]:
-        """Per key its children keys in rank order; the records, azimuths and parent azimuths as arrays."""
-        children: list[list[int]] = [[] for _ in self.keys]
-        for k, p in enumerate(self.key_parent.tolist()):
+        """Per key (:meth:`sample_keys`) its children keys in rank order; the records, azimuths and parent
+        azimuths as arrays."""
+        keys, key_parent = self.sample_keys()
+        children: list[list[int]] = [[] for _ in keys]
+        for k, p in enumerate(key_parent.tolist()):
             if p >= 0:
-                children[p].append(k)  # keys are sorted: siblings in rank order
+                children[p].append(k)  # siblings in rank order
         return children, self.record.numpy(), self.azimuth.numpy(), self.parent_azimuth.numpy()
 
     def _walk(self, u: np.ndarray, w: np.ndarray, links: OrganLinks,
@@ -279,13 +313,14 @@ class OrganModel(nn.Module):
         (:class:`~torch4dtree.model.organ_table.OrganLinks`) and goes on after the child that stands in for the last
         one taken, so switching neither repeats nor skips an organ; it waits for a landmark to match by."""
         children, record, az, parent_az = plan
-        K = len(self.keys)
+        K = len(children)
         persistence = self.settings.persistence
         first = int(pick_donors(torch.from_numpy(w)[None], torch.tensor([u[1]]))[0])
         chosen[0], turn[0] = record[first, 0], 2 * math.pi * u[2]
-        for k in range(K):  # parents first
+        todo = [0]
+        for k in todo:  # parents first: only the keys taken
             source = int(chosen[k])
-            if source < 0 or not children[k]:
+            if not children[k]:
                 continue
             here = az[source] + turn[k]
             standing = links.equivalent[source]  # (P,)
@@ -303,6 +338,7 @@ class OrganModel(nn.Module):
                 last = int(links.kids[cur, i])
                 i += 1
                 chosen[c], turn[c] = last, here - parent_az[last]
+                todo.append(c)
 
     def _frames(self, chosen: Tensor, length: Tensor, turn: Tensor, s_of: Tensor, times: Tensor, names: list[str]
                 ) -> list[TreeSequence]:
@@ -312,9 +348,10 @@ class OrganModel(nn.Module):
         r = chosen[b, k]
         sizes = torch.zeros(*chosen.shape, len(self.ages), dtype=torch.float64)
         sizes[b, k] = length[b, k, None] * self.growth[r]
-        sizes = carry_parents(sizes, self.key_parent, [len(key) for key in self.keys])
+        keys, key_parent = self.sample_keys()
+        sizes = carry_parents(sizes, key_parent, [len(key) for key in keys])
         shapes = rotate_about_up(self.shape[r], turn[b, k][:, None, None])
-        return assemble_batch(b, k, self.key_parent, sizes[b, k], shapes, s_of[b, k], times, names)
+        return assemble_batch(b, k, key_parent, sizes[b, k], shapes, s_of[b, k], times, names)
 
 
 def pick_donors(weights: Tensor, u: Tensor) -> Tensor:
