@@ -60,10 +60,15 @@ def _grown_scaffold(length: float, spurs_at: list[float]) -> Trees:
 
 def test_spurs_keep_their_arc_length_as_the_scaffold_grows() -> None:
     """A scaffold grows at its tip from 100 to 150 mm: its spurs stay 40 and 60 mm from its base and a new one
-    appears at 90 mm. Compared as fractions of the scaffold (0.4, 0.6 against 0.27, 0.4, 0.6) every spur would take
-    the place of the one above it; compared by arc length in the earlier scaffold's units each keeps its own."""
+    appears at 90 mm. Compared as fractions of the scaffold (0.4, 0.6 against 0.27, 0.4, 0.6; ``"rank"`` below the
+    main branch) every spur takes the place of the one above it; compared by arc length in the earlier scaffold's
+    units (``"arclength"``) each keeps its own."""
     earlier = _grown_scaffold(100.0, [40.0, 60.0])
     later = _grown_scaffold(150.0, [40.0, 60.0, 90.0])
-    reg = register_trees(later, earlier)
     lm, lr = later.label.tolist(), earlier.label.tolist()
-    assert sorted((lm[a], lr[b]) for a, b in reg.matches) == [(1, 1), (2, 2), (43, 43), (63, 63)]
+
+    def organs(positions: str) -> list[tuple[int, int]]:
+        return sorted((lm[a], lr[b]) for a, b in register_trees(later, earlier, positions=positions).matches)
+
+    assert (93, 63) in organs("rank")  # the case is a real one: fractions shift the spurs by one place
+    assert organs("arclength") == [(1, 1), (2, 2), (43, 43), (63, 63)]

@@ -61,8 +61,7 @@ def prepare_tree(tree: Trees, lambdas: Lambdas, positions: str = "warped") -> Pr
 
     ``positions`` (see :func:`child_positions`): ``"warped"``: ``s`` as given; ``"arclength"``: ``s`` as arc-length
     fractions of the parents (the parameters themselves for uniformly resampled trees); ``"rank"``: the main
-    branch's children's ``s`` as node ranks (:func:`_node_ranks`), deeper ones as arc-length fractions (compared
-    as arc lengths, :func:`child_positions`);
+    branch's children's ``s`` as node ranks (:func:`_node_ranks`), deeper ones as arc-length fractions;
     ``"nodes"``: every child's ``s`` as its node rank on its parent, axes :data:`AXIL_OFFSET` above their node.
     ``lambdas`` weigh the recursive subtree norms (``norm``, the cost of leaving a subtree unmatched).
 
@@ -145,15 +144,12 @@ def child_positions(mov: PreparedTree, ref: PreparedTree, a: int, b: int, childr
 
     ``"warped"``: ``gamma_ab^{-1}(s_c)`` (``gamma_ab (T,)`` the parent's warp sampled on ``grid (T,)``,
     docs/method.md §3); ``"arclength"``: their arc length from the parent's base whatever the warp, in units of the
-    reference parent's length (may exceed 1); ``"nodes"``: their node ranks as they are; ``"rank"``: node ranks on
-    the main branch, arc lengths as ``"arclength"`` below it. Why: a side branch grows at its tip and its laterals
-    keep their distance from its base, so their fractions of it shrink as it grows (a scaffold 1.3x longer moves
-    every spur on it to 0.77x its fraction, past its neighbour).
+    reference parent's length (may exceed 1); ``"rank"``, ``"nodes"``: their node ranks as they are.
     """
     if not len(children):
         return np.zeros(0)
     s_c = mov.s[list(children)]
-    if positions == "arclength" or (positions == "rank" and mov.parent[a] >= 0):
+    if positions == "arclength":
         return s_c * mov.sqrt_len[a] ** 2 / max(float(ref.sqrt_len[b]) ** 2, MIN_LENGTH)
     if positions in ("rank", "nodes"):
         return s_c.copy()

@@ -269,8 +269,7 @@ def register_to_reference(trees: Trees, reference: Trees, lambdas: Sequence[floa
             fraction, so a fixed ``lp`` would weigh positions differently for every scale. ``False``: ``lambdas[2]``
             as it is. The weights used are in the results' ``aligned.lambdas``.
         positions: how a matched child's place on its parent is compared (``settings.POSITIONS``, :mod:`.prepare`).
-            ``"rank"`` (default): a child of the main branch by its node rank, deeper ones by arc length as
-            ``"arclength"``;
+            ``"rank"`` (default): a child of the main branch by its node rank, deeper ones by arc-length fraction;
             node k of a growing plant stays node k, so identities survive elongating stems. ``"warped"``: the
             child moves with its parent's warp, so the distance is the layout's own metric (what means and
             geodesics need). ``"arclength"``: its arc length from the parent's base in units of the reference
