@@ -43,3 +43,32 @@ def test_spurs_that_turn_keep_their_places() -> None:
     assert (3, 4) in free.matches and (4, 3) in free.matches  # the case is a real one: any matching swaps them
     reg = register_trees(later, earlier, order_tol=ORDER_TOL)
     assert reg.matches == [(k, k) for k in range(6)]
+
+
+def _grown_scaffold(length: float, spurs_at: list[float]) -> Trees:
+    """A 100 mm trunk, a scaffold of ``length`` mm at its middle, identical 10 mm spurs at arc lengths ``spurs_at``
+    (mm from the scaffold's base), each pointing the same way."""
+    t = np.linspace(0.0, 1.0, 40)[:, None]
+    trunk = t * np.array([0.0, 0.0, 100.0])
+    base = np.array([0.0, 0.0, 40.0])
+    scaffold = base + t * length * SCAFFOLD_DIR
+    spurs = [base + a * SCAFFOLD_DIR + t * 10.0 * _spur_dir(90.0) for a in spurs_at]
+    labels = [1, 2, *(3 + int(a) for a in spurs_at)]  # a spur's organ: its place on the scaffold
+    return Trees.from_branches([[trunk, scaffold, *spurs]], [[-1, 0, *[1] * len(spurs_at)]], T=32,
+                               dtype=torch.float64, labels=[labels])
+
+
+def test_spurs_keep_their_arc_length_as_the_scaffold_grows() -> None:
+    """A scaffold grows at its tip from 100 to 150 mm: its spurs stay 40 and 60 mm from its base and a new one
+    appears at 90 mm. Compared as fractions of the scaffold (0.4, 0.6 against 0.27, 0.4, 0.6; ``"rank"`` below the
+    main branch) every spur takes the place of the one above it; compared by arc length in the earlier scaffold's
+    units (``"arclength"``) each keeps its own."""
+    earlier = _grown_scaffold(100.0, [40.0, 60.0])
+    later = _grown_scaffold(150.0, [40.0, 60.0, 90.0])
+    lm, lr = later.label.tolist(), earlier.label.tolist()
+
+    def organs(positions: str) -> list[tuple[int, int]]:
+        return sorted((lm[a], lr[b]) for a, b in register_trees(later, earlier, positions=positions).matches)
+
+    assert (93, 63) in organs("rank")  # the case is a real one: fractions shift the spurs by one place
+    assert organs("arclength") == [(1, 1), (2, 2), (43, 43), (63, 63)]
