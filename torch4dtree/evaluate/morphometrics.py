@@ -180,17 +180,19 @@ def compare_populations(real: np.ndarray, samples: np.ndarray) -> dict[str, Any]
     """Compare curves ``real (R, A, F)`` and ``samples (S, A, F)`` (module doc).
 
     Returns ``{"real_plants", "samples", "features": {"<feature>@<u>": {"real_median", "sample_median", "ratio",
-    "ks"}}, "one_nna", "worst_ratio", "worst", "ks_max"}``: ``worst_ratio`` is ``min(ratio, 1 / ratio)`` at the
-    worst feature and age ``u > 0`` (named in ``worst``), ``ks_max`` the largest KS at ``u > 0``.
+    "ks"}}, "one_nna", "worst_ratio", "worst", "worst_by_age", "ks_max"}``: ``worst_ratio`` is ``min(ratio, 1 /
+    ratio)`` at the worst feature and age ``u > 0`` (named in ``worst``), ``worst_by_age`` the same at each age
+    ``u > 0`` (keys ``"<u>"``), ``ks_max`` the largest KS at ``u > 0``.
 
     Example:
         >>> x = np.arange(24.0).reshape(4, 2, 3)[:, :1].repeat(5, 1)[..., [0, 1, 2, 0, 1]]
         >>> r = compare_populations(x, 2 * x)
-        >>> r["features"]["length@1.0"]["ratio"], r["ks_max"] > 0
-        (2.0, True)
+        >>> r["features"]["length@1.0"]["ratio"], r["ks_max"] > 0, r["worst_by_age"]["0.5"]
+        (2.0, True, 0.5)
     """
     out: dict[str, Any] = {"real_plants": len(real), "samples": len(samples), "features": {}}
     worst, worst_name, ks_max = 1.0, "", 0.0
+    by_age = {f"{u}": 1.0 for u in AGES if u > 0}
     for j, f in enumerate(FEATURES):
         for i, u in enumerate(AGES):
             mr, ms, ratio = _median_ratio(real[:, i, j], samples[:, i, j])
@@ -198,6 +200,7 @@ def compare_populations(real: np.ndarray, samples: np.ndarray) -> dict[str, Any]
             out["features"][f"{f}@{u}"] = {"real_median": mr, "sample_median": ms, "ratio": ratio, "ks": ks}
             if u > 0:
                 score = min(ratio, 1 / ratio) if ratio > 0 else 0.0
+                by_age[f"{u}"] = min(by_age[f"{u}"], score)
                 if score < worst:
                     worst, worst_name = score, f"{f}@{u}: {ratio:.2f}"
                 ks_max = max(ks_max, ks)
@@ -207,7 +210,7 @@ def compare_populations(real: np.ndarray, samples: np.ndarray) -> dict[str, Any]
 
     mu, sd = vectors(real).mean(0), vectors(real).std(0) + STD_FLOOR
     out["one_nna"] = one_nna((vectors(samples) - mu) / sd, (vectors(real) - mu) / sd)
-    out.update(worst_ratio=worst, worst=worst_name, ks_max=ks_max)
+    out.update(worst_ratio=worst, worst=worst_name, worst_by_age=by_age, ks_max=ks_max)
     return out
 
 
