@@ -112,7 +112,7 @@ from ..temporal.registration import register_trajectories, time_warp_trajectory
 from ..temporal.trajectory import resample_trajectory
 from ..trees.structures import TreeSequence
 from .data import EvalData, EvalSettings, Plant4D, primary_source
-from .generative_organs import event_rates, organ_forecast, outside_keys_share
+from .generative_organs import event_rates, organ_forecasts, outside_keys_share
 from .generative_report import markdown
 from .generative_split import GenerativeSettings, folds_of, heldout_by_kind, load_heldout, splits
 from .morphometrics import AGES, compare_populations, population_curves
@@ -368,25 +368,6 @@ def _fit_organs(train: list[Plant4D]) -> tuple[OrganModel, float]:
     return organs, time.perf_counter() - t0
 
 
-def _organ_forecasts(model: FourDTreeModel, organs: OrganModel, held: list[Plant4D], encs: list[Any],
-                     gen: torch.Generator) -> list[dict[str, Any] | None]:
-    """:func:`~torch4dtree.evaluate.generative_organs.organ_forecast` of every held-out plant; the 4D mean
-    baseline at the plant's ages as in :func:`_forecast`."""
-    out: list[dict[str, Any] | None] = []
-    for p, e in zip(held, encs):
-        seq = p.sequence
-        half = len(seq) // 2
-        if half < 1:
-            out.append(None)
-            continue
-        u = ((seq.times[half:] - seq.times[0]).to(torch.float64) / float(model.duration)).clamp(0, 1)
-        mean = model.population.pca.inverse_features(time_warp_trajectory(model.mean.trajectory,
-                                                                          u.to(model.mean.trajectory)))
-        truth = e.aligned.features()[half:]
-        out.append(organ_forecast(model, organs, seq, truth, mean, gen))
-    return out
-
-
 def _fold(train: list[Plant4D], held: list[Plant4D], settings: EvalSettings, gen: torch.Generator,
           executor: Executor | None = None) -> dict[str, Any]:
     model, fit_seconds = _fit(train, settings, executor)
@@ -459,7 +440,7 @@ def _fold(train: list[Plant4D], held: list[Plant4D], settings: EvalSettings, gen
     recon_t = distance4d(t_alpha, _pad(_reconstruct(model, t_alpha[..., :k]), r))
     mean_t = distance4d(t_alpha, mean.expand_as(t_alpha))
     t0 = time.perf_counter()
-    organ_fc = _organ_forecasts(model, organs, held, encs, gen)
+    organ_fc = organ_forecasts(model, organs, [p.sequence for p in held], encs, gen)
     organ_forecast_seconds = (time.perf_counter() - t0) / len(held)
     plants = []
     for i, (p, e) in enumerate(zip(held, encs)):

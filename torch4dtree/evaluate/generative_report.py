@@ -134,8 +134,9 @@ def markdown(report: dict[str, Any]) -> list[str]:
     if g["source"] is None:
         return lines + ["No data source.", ""]
     lines += [f"Source `{g['source']}`" + (f" (skipped: {', '.join(g['skipped_sources'])})" if g["skipped_sources"]
-                                         else "") + ". Each fold is held out once; both models are fit on the other "
-              "plants. Ground metric: the 4D distance after temporal registration of trajectories in each fold's "
+                                         else "") + ". Each fold is held out once and both models are fit on the "
+              "other plants, or (a held-out folder) fit on the data folder's plants. "
+              "Ground metric: the 4D distance after temporal registration of trajectories in each fold's "
               "slot layout of the paper's model (tree PCA plus what it misses of the held-out frames); the organ "
               "model's samples and, for its reference row, the training plants are written in that layout as the "
               "held-out plants are. Each draw has as many samples as held-out plants; MMD lower is better, COV "

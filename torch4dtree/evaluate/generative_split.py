@@ -95,7 +95,8 @@ def load_heldout(folder: str | Path, T: int) -> EvalData:
 
 
 def heldout_by_kind(train: EvalData, heldout: EvalData) -> dict[str, list[Plant4D]]:
-    """Held-out plants for each training kind (module doc: by name, or the only kind of each side).
+    """Held-out plants for each training kind (module doc: by name, or the only kind of each side); a plant with a
+    frame file among the training plants' is an error.
 
     Example:
         >>> from pathlib import Path
@@ -103,8 +104,10 @@ def heldout_by_kind(train: EvalData, heldout: EvalData) -> dict[str, list[Plant4
         >>> heldout_by_kind(a, b)
         {}
     """
-    if train.root.resolve() == heldout.root.resolve():
-        raise ValueError(f"{train.root}: the held-out folder is the training folder")
+    fit = {f.resolve() for p in train.plants for f in p.files}
+    both = [p.name for p in heldout.plants if any(f.resolve() in fit for f in p.files)]
+    if both:
+        raise ValueError(f"held-out plants that are also training plants (a frame file in both): {both[:5]}")
     if len(train.kinds) == 1 and len(heldout.kinds) == 1:
         return {train.kinds[0]: heldout.plants}
     return {k: heldout.by_kind(k) for k in train.kinds if heldout.by_kind(k)}
