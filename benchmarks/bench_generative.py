@@ -21,7 +21,9 @@ with each of the seeds ``--seed .. --seed + K - 1``; per seed, :func:`compare_po
 (in memory, the same features as the SWC files give); printed: the median and the worst seed of the worst median
 ratio at each age after the first (``min(ratio, 1 / ratio)`` over the features), overall, and of the morphometric
 1-NNA. Scale row: the training plants against the held-out ones (with the same seeds, ``--n`` of them drawn without
-replacement when ``--n`` is smaller than the training set; otherwise all of them, one value). With ``--events``,
+replacement when ``--n`` is smaller than the training set; otherwise all of them, one value), and the real plants
+(training and held out together) split at random into sets of the same sizes, one split a seed: how far two real
+samples of this population are from each other. With ``--events``,
 organs shrinking / vanishing between frames (:func:`torch4dtree.evaluate.generative_organs.event_rates`) in the
 first seed's samples (as many as training plants) beside the training and held-out plants. The first seed's
 samples are the ones written to OUT_DIR (so ``--yardstick`` checks them); ``--json FILE`` keeps every seed's numbers.
@@ -112,6 +114,10 @@ def seed_protocol(models: dict[str, torch.nn.Module], train: list[TreeSequence],
         out["training plants"] = {"seeds": [_per_seed(real, train_curves[p]) for p in picks]}
     else:
         out["training plants"] = {"seeds": [_per_seed(real, train_curves)]}
+    both = np.concatenate([train_curves, real])
+    perms = [torch.randperm(len(both), generator=torch.Generator().manual_seed(s)).numpy() for s in seeds]
+    out["random splits of the real plants"] = {"seeds": [_per_seed(both[p[len(train):]], both[p[:len(train)]])
+                                                         for p in perms]}
     for row in out.values():
         row["summary"] = {k: summary(r[k] for r in row["seeds"]) for k in SEED_KEYS}
     return out
