@@ -100,24 +100,26 @@ def _per_seed(real: np.ndarray, samples: np.ndarray) -> dict:
     return {"worst_ratio": c["worst_ratio"], "worst": c["worst"], "one_nna": c["one_nna"], **c["worst_by_age"]}
 
 
-def seed_protocol(models: dict[str, torch.nn.Module], train: list[TreeSequence], held: list[TreeSequence], n: int,
-                  seeds: list[int]) -> dict[str, dict]:
+def seed_protocol(models: dict[str, torch.nn.Module], train_dir: Path, heldout_dir: Path, n: int, seeds: list[int]
+                  ) -> dict[str, dict]:
     """The plausibility protocol over seeds (module doc): ``{row: {"seeds": [per seed], "summary": {key: summary}}}``
-    for each fitted model and the scale row ``training plants``."""
-    real = population_curves(held)
-    train_curves = population_curves(train)
+    for each fitted model and the scale rows; real plants read from their folders' SWC files, as the yardstick
+    reads them."""
+    real = population_curves(heldout_dir)
+    train_curves = population_curves(train_dir)
     out: dict[str, dict] = {}
     for name, model in models.items():
         out[name] = {"seeds": [_per_seed(real, population_curves(draw(model, n, s))) for s in seeds]}
-    if n < len(train):
-        picks = [torch.randperm(len(train), generator=torch.Generator().manual_seed(s))[:n].numpy() for s in seeds]
+    if n < len(train_curves):
+        picks = [torch.randperm(len(train_curves), generator=torch.Generator().manual_seed(s))[:n].numpy()
+                 for s in seeds]
         out["training plants"] = {"seeds": [_per_seed(real, train_curves[p]) for p in picks]}
     else:
         out["training plants"] = {"seeds": [_per_seed(real, train_curves)]}
     both = np.concatenate([train_curves, real])
     perms = [torch.randperm(len(both), generator=torch.Generator().manual_seed(s)).numpy() for s in seeds]
-    out["random splits of the real plants"] = {"seeds": [_per_seed(both[p[len(train):]], both[p[:len(train)]])
-                                                         for p in perms]}
+    k = len(train_curves)
+    out["random splits of the real plants"] = {"seeds": [_per_seed(both[p[k:]], both[p[:k]]) for p in perms]}
     for row in out.values():
         row["summary"] = {k: summary(r[k] for r in row["seeds"]) for k in SEED_KEYS}
     return out
@@ -253,7 +255,7 @@ def main() -> None:
                               "fits": results}
     if a.seeds > 1:
         seeds = list(range(seed, seed + a.seeds))
-        protocol = seed_protocol({f"{k} model": m for k, m in models.items()}, train, held, n, seeds)
+        protocol = seed_protocol({f"{k} model": m for k, m in models.items()}, train_dir, heldout, n, seeds)
         print("\n".join(seed_table(protocol, a.label, n, len(held))))
         record["seeds"] = seeds
         record["protocol"] = protocol

@@ -159,5 +159,10 @@ def test_the_generative_section_reports_morphometrics(synthetic_folder: Callable
         assert s["worst_ratio"]["min"] <= s["worst_ratio"]["median"] and s["one_nna"]["n"] == len(rs)
     # the memorised training plants are real plants of the same kind: their sizes are near the held-out ones
     assert fold["memorise"][0]["worst_ratio"] > 0.4
+    # real plants are read from their files, as the yardstick reads the folders: the same numbers
+    folder = {n: np.stack([folder_curve(p.files[0].parent) for p in d.plants]) for n, d in (("t", train), ("h", held))}
+    c = compare_populations(folder["h"], folder["t"])
+    assert {k: fold["memorise"][0][k] for k in ("worst_ratio", "one_nna", "ks_max")} == {
+        k: c[k] for k in ("worst_ratio", "one_nna", "ks_max")}
     md = "\n".join(generative.markdown({"generative": out}))
     assert "Morphometrics" in md and "| @ 0.25 |" in md and "held-out folder" in md

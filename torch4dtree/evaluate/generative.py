@@ -71,8 +71,10 @@ samples closer to a training plant than the median nearest-neighbour distance be
 samples decoded to skeletons against the held-out plants, on ``settings.morpho_draws`` independent draws per fold of
 as many samples as held-out plants (the organ model's drawn apart from its pool above; the paper model's the first
 trajectories of its pool; the 4D mean one draw of one plant); ``memorise``'s one draw is the training plants
-themselves, the scale a perfect generator would reach. Summarised over all draws of all folds: the median and the
-worst draw of the worst median ratio (overall and at each age after the first) and of the morphometric 1-NNA.
+themselves, the scale a perfect generator would reach. Real plants are read from their frame files, as the
+independent yardstick reads them (the same numbers on the same folders). Summarised over all draws of all folds:
+the median and the worst draw of the worst median ratio (overall and at each age after the first) and of the
+morphometric 1-NNA.
 Organs shrinking / vanishing between frames are counted on the first ``len(train)`` samples of each model, beside
 the training and the held-out plants.
 
@@ -102,6 +104,7 @@ import time
 from concurrent.futures import Executor
 from typing import Any
 
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -115,7 +118,7 @@ from .data import EvalData, EvalSettings, Plant4D, primary_source
 from .generative_organs import event_rates, organ_forecasts, outside_keys_share
 from .generative_report import markdown
 from .generative_split import GenerativeSettings, folds_of, heldout_by_kind, load_heldout, splits
-from .morphometrics import AGES, compare_populations, population_curves
+from .morphometrics import AGES, compare_populations, files_curve, population_curves
 from .paper import SECONDS
 from .stats import summary
 
@@ -337,7 +340,7 @@ def _morphometrics(model: FourDTreeModel, pools: dict[str, Tensor], organ_sample
     ``(P, n_t, k)`` decoded to skeletons; the memorising generator's one draw the training plants as read. Also
     returns each generator's 4D trees."""
     h = len(held)
-    real = population_curves([p.sequence for p in held])
+    real = _real_curves(held)
     seqs = {"organs": organ_samples}
     for name, pool in pools.items():
         if name in GENERATORS:
@@ -345,10 +348,20 @@ def _morphometrics(model: FourDTreeModel, pools: dict[str, Tensor], organ_sample
                           else model.decode_trajectories(pool[:draws * h]))
     out: dict[str, list[dict[str, Any]]] = {}
     for name, s in seqs.items():
+        if name == "memorise":  # one draw: the training plants
+            out[name] = [_slim(compare_populations(real, _real_curves(train)))]
+            continue
         curves = population_curves(s)
-        out[name] = [_slim(compare_populations(real, curves[i:i + h]))
-                     for i in range(0, len(curves) if name != "memorise" else 1, h)]
+        out[name] = [_slim(compare_populations(real, curves[i:i + h])) for i in range(0, len(curves), h)]
     return out, seqs
+
+
+def _real_curves(plants: list[Plant4D]) -> np.ndarray:
+    """``(P, A, F)`` morphometric curves of real plants from their frame files (as the yardstick reads them: the
+    trees read at ``T`` points per branch are up to 2 % shorter), from their trees when a plant has no files."""
+    if all(len(p.files) == len(p.sequence) for p in plants):
+        return np.stack([files_curve(p.files, p.sequence.times.tolist()) for p in plants])
+    return population_curves([p.sequence for p in plants])
 
 
 def _slim(c: dict[str, Any]) -> dict[str, Any]:

@@ -34,7 +34,8 @@ from ..io.swc import read_swc_skeleton
 from ..trees.skeleton import trees_to_skeleton
 from ..trees.structures import Trees, TreeSequence
 
-__all__ = ["AGES", "FEATURES", "compare_populations", "curve_from_frames", "folder_curve", "ks_statistic",
+__all__ = ["AGES", "FEATURES", "compare_populations", "curve_from_frames", "file_features", "files_curve",
+           "folder_curve", "ks_statistic",
            "one_nna", "population_curves", "sequence_curve", "skeleton_features", "summary_line", "tree_features"]
 
 FEATURES = ("length", "height", "spread", "tips", "branchpoints")
@@ -101,23 +102,46 @@ def sequence_curve(sequence: TreeSequence) -> np.ndarray:
     return curve_from_frames(feats, sequence.times.tolist())
 
 
+def file_features(path: str | Path) -> np.ndarray | None:
+    """``(F,)`` features of one frame file: an SWC frame as its raw skeleton, a ``.mat`` frame as its tree;
+    ``None`` for an empty frame."""
+    path = Path(path)
+    if path.suffix.lower() == ".swc":
+        sk = read_swc_skeleton(path)
+        return skeleton_features(sk.xyz, sk.parent)
+    tree = read_tree(path)
+    return None if tree is None else tree_features(tree)
+
+
+def files_curve(files: Sequence[str | Path], times: Sequence[float]) -> np.ndarray:
+    """``(A, F)`` curve of a plant's frame files at their times (increasing; empty frames skipped): the files as
+    the yardstick reads them, not the resampled trees.
+
+    Example:
+        >>> files_curve([], [])
+        Traceback (most recent call last):
+        ...
+        ValueError: no non-empty frame
+    """
+    feats, kept = [], []
+    for path, t in zip(files, times):
+        f = file_features(path)
+        if f is not None:
+            feats.append(f)
+            kept.append(float(t))
+    if not feats:
+        raise ValueError("no non-empty frame")
+    return curve_from_frames(np.stack(feats), kept)
+
+
 def folder_curve(folder: str | Path) -> np.ndarray:
     """``(A, F)`` curve of a sequence folder: frames and times as :func:`~torch4dtree.io.dataset.frame_times`
-    finds them; SWC frames as their raw skeletons, ``.mat`` frames as their trees (empty ones skipped)."""
-    feats, times = [], []
-    for path, t in frame_times(Path(folder)):
-        if path.suffix.lower() == ".swc":
-            sk = read_swc_skeleton(path)
-            feats.append(skeleton_features(sk.xyz, sk.parent))
-        else:
-            tree = read_tree(path)
-            if tree is None:
-                continue
-            feats.append(tree_features(tree))
-        times.append(t)
-    if not feats:
-        raise ValueError(f"{folder}: no non-empty frame")
-    return curve_from_frames(np.stack(feats), times)
+    finds them, read by :func:`files_curve`."""
+    pairs = frame_times(Path(folder))
+    try:
+        return files_curve([p for p, _ in pairs], [t for _, t in pairs])
+    except ValueError:
+        raise ValueError(f"{folder}: no non-empty frame") from None
 
 
 def population_curves(plants: str | Path | Iterable[TreeSequence]) -> np.ndarray:
