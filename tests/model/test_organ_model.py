@@ -101,17 +101,36 @@ def test_plants_decoded_together_equal_plants_decoded_alone(model: OrganModel, m
 
 
 def test_children_keep_their_parents_present() -> None:
-    # the child (key 2) is there at every age, its parent (key 1) only in the middle one: carried to the last age,
-    # and the child stays out of the first frame, before its parent appears
+    # the child (key 2) is there at every age, its parent (key 1) only in the middle one: carried to the last age
+    # and there from the first, at its first size (the child's plant grew it earlier than the parent's plant)
     sizes = torch.tensor([[[1.0, 2.0, 3.0], [0.0, 0.5, 0.0], [0.2, 0.2, 0.2]]], dtype=torch.float64)
     carried = organs.carry_parents(sizes, torch.tensor([-1, 0, 1]), [0, 1, 2])
-    assert carried[0, 1].tolist() == [0.0, 0.5, 0.5] and torch.equal(carried[0, [0, 2]], sizes[0, [0, 2]])
+    assert carried[0, 1].tolist() == [0.5, 0.5, 0.5] and torch.equal(carried[0, [0, 2]], sizes[0, [0, 2]])
     up = torch.linspace(0, 1, 4, dtype=torch.float64)[:, None] * torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)
     shape = up.expand(3, 3, 4, 3)
     s = torch.full((3, 3), 0.5, dtype=torch.float64)
     plant = organs.assemble_batch(torch.zeros(3, dtype=torch.long), torch.arange(3), torch.tensor([-1, 0, 1]),
                                   carried[0], shape, s, torch.arange(3.0), ["p"])[0]
-    assert plant.frames.num_branches.tolist() == [1, 3, 3]
+    assert plant.frames.num_branches.tolist() == [3, 3, 3]
+    alone = sizes.clone()
+    alone[0, 2] = 0.0  # no child: a parent is not carried for nothing
+    assert organs.carry_parents(alone, torch.tensor([-1, 0, 1]), [0, 1, 2])[0, 1].tolist() == [0.0, 0.5, 0.0]
+
+
+@pytest.mark.parametrize("fail", [False, True])
+def test_decode_restores_the_callers_threads(model: OrganModel, fail: bool, monkeypatch: pytest.MonkeyPatch) -> None:
+    before = torch.get_num_threads()
+    torch.set_num_threads(3)
+    try:
+        if fail:  # restored on an error too
+            monkeypatch.setattr(OrganModel, "_frames", lambda *args: (_ for _ in ()).throw(RuntimeError("boom")))
+            with pytest.raises(RuntimeError, match="boom"):
+                model.sample(2, generator=torch.Generator().manual_seed(0))
+        else:
+            model.sample(2, generator=torch.Generator().manual_seed(0))
+        assert torch.get_num_threads() == 3
+    finally:
+        torch.set_num_threads(before)
 
 
 def test_organ_checkpoints_fail_clearly(model: OrganModel, tmp_path: Path) -> None:

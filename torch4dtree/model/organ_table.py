@@ -25,10 +25,13 @@ from torch import Tensor
 from ..settings import RegistrationSettings
 from ..trees.structures import Trees, TreeSequence
 
-__all__ = ["OrganTable", "azimuth", "organ_table", "plant_organs"]
+__all__ = ["OrganLinks", "OrganTable", "azimuth", "organ_links", "organ_table", "plant_organs"]
 
 # the vertical axis (the plants' "up"; the azimuth of an organ is its direction about it)
 UP = 2
+# an organ first seen in a frame emerged at an unknown time since the frame before: the k-th organ of a plant at the
+# share frac(k x this) of that interval (the golden ratio's conjugate spreads the shares evenly over [0, 1))
+EMERGENCE_STEP = (math.sqrt(5.0) - 1.0) / 2.0
 
 
 @dataclass
@@ -128,7 +131,8 @@ def plant_organs(seq: TreeSequence, ages: Tensor, registration: RegistrationSett
         if not L > 0:
             continue
         az = float(azimuth(curve))
-        growth, shape, s_age = _growth_and_shapes(slot_len[:, k] / L, glob[:, k], frames, lengths, u, ages)
+        growth, shape, s_age = _growth_and_shapes(slot_len[:, k] / L, glob[:, k], frames, lengths, u, ages,
+                                                  (len(organs) + 1) * EMERGENCE_STEP % 1.0)
         organs.append({"key": key, "length": L, "shape": shape, "growth": growth,
                        "s": s_age if key else torch.zeros_like(s_age), "azimuth": az,
                        "parent_azimuth": az if not key else parent_az})
@@ -137,11 +141,12 @@ def plant_organs(seq: TreeSequence, ages: Tensor, registration: RegistrationSett
     return organs
 
 
-def _growth_and_shapes(r: Tensor, glob: Tensor, frames: Trees, lengths: Tensor, u: Tensor, ages: Tensor
-                       ) -> tuple[Tensor, Tensor, Tensor]:
+def _growth_and_shapes(r: Tensor, glob: Tensor, frames: Trees, lengths: Tensor, u: Tensor, ages: Tensor,
+                       phase: float = 0.5) -> tuple[Tensor, Tensor, Tensor]:
     """One organ's growth curve ``(G,)``, unit-length shapes ``(G, T, d)`` and attachment ``s (G,)`` at ``ages``,
     from its relative length ``r (n,)`` and packed branch ``glob (n,)`` (-1 where absent) in each of the ``n`` frames
-    of ``frames`` (branch lengths ``lengths``) at normalised times ``u``."""
+    of ``frames`` (branch lengths ``lengths``) at normalised times ``u``; it emerges the share ``phase`` in ``(0, 1)``
+    of the way from the last frame without it to the first with it, and goes as far from the last frame with it."""
     seen = torch.nonzero(glob >= 0).reshape(-1)
     first, last = int(seen[0]), int(seen[-1])
     r = r.clone()
@@ -149,15 +154,16 @@ def _growth_and_shapes(r: Tensor, glob: Tensor, frames: Trees, lengths: Tensor, 
     uu, aa = u.numpy(), ages.numpy()
     if len(u) < 2:
         return r.expand(len(ages)).clone(), *_nearest_shapes(seen, glob, frames, lengths, u, ages)
-    # between frames the length is linear, but the organ is there only nearer to a frame that holds it: it appears
-    # and goes at the midpoints (a count read between frames then matches the frames' own, linearly interpolated)
+    # between frames the length is linear; the organ emerges (and goes) at some time between the frames, the share
+    # ``phase`` of the way: spread evenly over the organs, so that the count of a population read between frames is
+    # the frames' own, linearly interpolated
     growth = torch.from_numpy(np.interp(aa, uu, r.numpy()))
     if first > 0:
-        growth[torch.from_numpy(aa < 0.5 * (uu[first - 1] + uu[first]))] = 0.0
-    if last + 1 < len(uu):  # where tracking split an organ in two, the parts meet at the midpoint, never overlap
+        growth[torch.from_numpy(aa < uu[first - 1] + phase * (uu[first] - uu[first - 1]))] = 0.0
+    if last + 1 < len(uu):
         after = torch.from_numpy(aa > uu[last])
         growth[after] = float(r[last])
-        growth[torch.from_numpy(aa > 0.5 * (uu[last] + uu[last + 1]))] = 0.0
+        growth[torch.from_numpy(aa >= uu[last] + phase * (uu[last + 1] - uu[last]))] = 0.0
     return growth, *_nearest_shapes(seen, glob, frames, lengths, u, ages)
 
 
@@ -205,3 +211,119 @@ def organ_table(sequences: Sequence[TreeSequence], n_ages: int, registration: Re
         parent_azimuth=torch.tensor([o["parent_azimuth"] for _, o in rows], dtype=torch.float64),
         ages=ages, summary=torch.tensor(summary, dtype=torch.float64),
     )
+
+
+@dataclass
+class OrganLinks:
+    """How the ``R`` organs of a fitted table hang together and which organ of another plant stands in for each
+    (derived from the table's buffers, so any fitted model can rebuild them).
+
+    Attributes:
+        plant: ``(R,)`` each organ's plant.
+        parent: ``(R,)`` each organ's parent organ in its plant (-1: the main branch).
+        kids: ``(R, C)`` each organ's children in order of place (-1 padded; the organs of one node in one order
+            in every plant: fewer descendants, then shorter, first); ``n_kids (R,)`` how many.
+        features: ``(R, 4)`` place on the parent (attachment share at the last age), emergence age, log length and
+            log(1 + descendants), standardised and weighted (:data:`MATCH_WEIGHTS`): what makes organs of two plants
+            the same organ (:func:`organ_links`).
+        equivalent: ``(R, P)`` the organ of each plant that stands in for each organ (-1: none): the main branch
+            for the main branch, else among the children of the parent's equivalent the nearest in ``features``.
+        landmark: ``(R,)`` whether an organ is at least :data:`LANDMARK_SHARE` of its largest sibling: a small organ
+            (a bud, a leaf just emerged) has many look-alikes on a parent, so it is a poor landmark to match by.
+    """
+
+    plant: np.ndarray
+    parent: np.ndarray
+    kids: np.ndarray
+    n_kids: np.ndarray
+    features: np.ndarray
+    equivalent: np.ndarray
+    landmark: np.ndarray
+
+    def nearest_kid(self, organ: int, of: int) -> int:
+        """The rank among ``of``'s children of the one nearest to organ ``organ`` in ``features`` (-1: none)."""
+        n = int(self.n_kids[of])
+        if n == 0:
+            return -1
+        d = np.square(self.features[self.kids[of, :n]] - self.features[organ]).sum(1)
+        return int(d.argmin())
+
+
+# organs of other plants matched to an organ, at most this many at once (bounds the matching's memory)
+MATCH_CHUNK = 256
+# the weights of place, emergence, log length and log(1 + descendants) (each in standard deviations) in matching
+# organs of two plants: place first, so that a small organ stands in for the organ at its place rather than for a
+# small one elsewhere; descendants tell a side shoot from the leaf at its node
+MATCH_WEIGHTS = (6.0, 1.0, 0.5, 1.0)
+# an organ at least this share of its largest sibling's length is a landmark (OrganLinks.landmark)
+LANDMARK_SHARE = 0.1
+
+
+def organ_links(record: Tensor, key_parent: Tensor, s: Tensor, growth: Tensor, log_length: Tensor) -> OrganLinks:
+    """The :class:`OrganLinks` of a table given as a fitted :class:`~torch4dtree.model.OrganModel` holds it:
+    ``record (P, K)`` each plant's organ at each key (-1: none), ``key_parent (K,)``, and per organ ``s (R, G)``,
+    ``growth (R, G)``, ``log_length (R,)``.
+
+    Ranks alone do not name the same organ in two plants: one small extra organ (a bud, a shoot at a leaf's node)
+    shifts the ranks of all organs above it. An organ is matched instead by its place, its emergence, its size and
+    how much grows on it, each standardised over all organs but the main branches and weighted by
+    :data:`MATCH_WEIGHTS` (docs/method.md §5, generative models).
+
+    Example:
+        >>> record = torch.tensor([[0, 1, -1], [2, 3, 4]])  # plant 1 has an extra small organ first
+        >>> s = torch.tensor([[0.0], [0.5], [0.0], [0.2], [0.5]]).double().expand(5, 2)
+        >>> growth = torch.ones(5, 2, dtype=torch.float64)
+        >>> log_length = torch.tensor([1.0, 0.5, 1.0, -2.0, 0.5], dtype=torch.float64)
+        >>> organ_links(record, torch.tensor([-1, 0, 0]), s, growth, log_length).equivalent[1].tolist()
+        [1, 4]
+    """
+    rec = record.numpy()
+    P, K = rec.shape
+    R = len(log_length)
+    plant, key = np.zeros(R, dtype=np.int64), np.zeros(R, dtype=np.int64)
+    rows, cols = np.nonzero(rec >= 0)
+    plant[rec[rows, cols]], key[rec[rows, cols]] = rows, cols
+    kp = key_parent.numpy()[key]
+    parent = np.where(kp >= 0, rec[plant, np.maximum(kp, 0)], -1)
+    depth = np.zeros(K, dtype=np.int64)
+    for k in range(K):  # keys are sorted parents first
+        depth[k] = depth[key_parent[k]] + 1 if key_parent[k] >= 0 else 0
+    n_kids = np.bincount(parent[parent >= 0], minlength=R)
+    organ_depth = depth[key]
+    below = np.zeros(R)  # descendants of each organ (a leaf has none, a side shoot many)
+    for d in range(int(organ_depth.max(initial=0)), 0, -1):
+        at = np.nonzero(organ_depth == d)[0]
+        np.add.at(below, parent[at], below[at] + 1.0)
+    G = growth.shape[1]
+    onset = (growth > 0).double().argmax(1).numpy() / max(G - 1, 1)
+    raw = np.stack([s[:, -1].numpy(), onset, log_length.numpy(), np.log1p(below)], 1)
+    # children in order of place, then (organs of one node) fewer descendants, then shorter first: one order for the
+    # organs of a node in every plant
+    order = np.lexsort((raw[:, 2], raw[:, 3], raw[:, 0], parent))
+    order = order[parent[order] >= 0]
+    kids = np.full((R, max(int(n_kids.max(initial=0)), 1)), -1, dtype=np.int64)
+    start = np.concatenate([[0], np.cumsum(n_kids)[:-1]])
+    kids[parent[order], np.arange(len(order)) - start[parent[order]]] = order
+    side = parent >= 0
+    scale = raw[side].std(0) if side.sum() > 1 else np.ones(raw.shape[1])
+    features = raw / np.where(scale > 0, scale, 1.0) * np.asarray(MATCH_WEIGHTS)
+    equivalent = np.full((R, P), -1, dtype=np.int64)
+    mains = np.nonzero(~side)[0]
+    equivalent[mains] = rec[:, 0][None]
+    for d in range(1, int(organ_depth.max(initial=0)) + 1):
+        at = np.nonzero(organ_depth == d)[0]
+        for lo in range(0, len(at), MATCH_CHUNK):
+            rs = at[lo:lo + MATCH_CHUNK]
+            up = equivalent[parent[rs]]  # (n, P)
+            cand = kids[np.maximum(up, 0)]  # (n, P, C)
+            dist = np.square(features[np.maximum(cand, 0)] - features[rs][:, None, None]).sum(-1)
+            dist[(cand < 0) | (up < 0)[..., None]] = np.inf
+            best = dist.argmin(-1)
+            pick = np.take_along_axis(cand, best[..., None], -1)[..., 0]
+            equivalent[rs] = np.where(np.isfinite(dist.min(-1)), pick, -1)
+    length = np.exp(log_length.numpy())
+    largest = np.zeros(R)
+    np.maximum.at(largest, np.maximum(parent, 0), np.where(side, length, 0.0))
+    landmark = ~side | (length >= LANDMARK_SHARE * largest[np.maximum(parent, 0)])
+    return OrganLinks(plant=plant, parent=parent, kids=kids, n_kids=n_kids, features=features, equivalent=equivalent,
+                      landmark=landmark)

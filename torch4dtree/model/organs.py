@@ -36,15 +36,13 @@ from torch import Tensor, nn
 from ..curves.srvf import interpolate_curve
 from ..settings import OrganSettings
 from ..trees.structures import Trees, TreeSequence
-from .organ_table import UP, organ_table
+from .organ_table import UP, OrganLinks, organ_links, organ_table
 
 __all__ = ["OrganModel", "OrganModelError", "assemble_batch", "assemble_frames", "carry_parents", "pick_donors",
            "rotate_about_up"]
 
 # the plant latent's features: log total length at the last age, at the middle age, log(1 + organs at the last age)
 LATENT = 3
-# siblings attached closer than this (share of the parent) sit on one node (a whorl, a leaflet pair)
-SAME_NODE = 1e-4
 # keep a sampled organ in a frame when it is at least this share of its plant's final main-branch length (a shorter
 # one would be a zero-length branch once written)
 MIN_LENGTH = 1e-3
@@ -107,6 +105,7 @@ class OrganModel(nn.Module):
         self.register_buffer("time_start", torch.tensor(0.0, dtype=f64))
         self.register_buffer("duration", torch.tensor(1.0, dtype=f64))
         self.report_: dict[str, Any] = {}
+        self._links: OrganLinks | None = None
 
     # ------------------------------------------------------------------------ state
     def get_extra_state(self) -> dict[str, Any]:
@@ -123,6 +122,7 @@ class OrganModel(nn.Module):
         for name in list(self._buffers):
             if name in state_dict:
                 self._buffers[name] = torch.empty_like(state_dict[name])
+        self._links = None
         return super().load_state_dict(state_dict, strict, assign)
 
     def save(self, path: str | Path, config: dict[str, Any] | None = None, overwrite: bool = False) -> str:
@@ -166,6 +166,7 @@ class OrganModel(nn.Module):
         self.shape, self.growth, self.s = table.shape, table.growth, table.s
         self.azimuth, self.parent_azimuth = table.azimuth, table.parent_azimuth
         self.summary, self.ages = summary, table.ages
+        self._links = None
         starts = torch.tensor([float(s.times[0]) for s in sequences], dtype=torch.float64)
         spans = torch.tensor([float(s.times[-1] - s.times[0]) for s in sequences], dtype=torch.float64)
         self.time_start, self.duration = starts.mean(), spans.mean().clamp_min(1e-12)
@@ -233,55 +234,75 @@ class OrganModel(nn.Module):
             n.append(torch.randn(LATENT + K, generator=g, dtype=torch.float64))
         return torch.stack(u), torch.stack(n)
 
+    def links(self) -> OrganLinks:
+        """The fitted organs' :class:`~torch4dtree.model.organ_table.OrganLinks` (built once from the buffers)."""
+        self.check_fitted()
+        if self._links is None:
+            self._links = organ_links(self.record, self.key_parent, self.s, self.growth, self.log_length)
+        return self._links
+
     def _grow(self, seeds: list[int]) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-        """Plants from their seeds (module doc): latent, then organs key by key (topology, donors, sizes, rotations),
-        all plants at once. Returns ``chosen (B, K)`` the training organ each key copies (-1: absent), ``length
-        (B, K)`` largest lengths, ``turn (B, K)`` rotations about the vertical and ``s_of (B, K, G)`` attachments."""
+        """Plants from their seeds (module doc): latent, then organs parent by parent (topology, donors, sizes,
+        rotations). Returns ``chosen (B, K)`` the training organ each key copies (-1: absent), ``length (B, K)``
+        largest lengths, ``turn (B, K)`` rotations about the vertical and ``s_of (B, K, G)`` attachments."""
         u, noise = self._draws(seeds)
-        B, K, P = len(seeds), len(self.keys), len(self.summary)
+        P = len(self.summary)
         plant = (u[:, 0] * P).long().clamp(max=P - 1)
         eps = noise[:, :LATENT].clamp(-self.settings.c, self.settings.c)
         w = self.kernel_weights(self.summary[plant] + self.settings.bandwidth * self.summary.std(0) * eps)  # (B, P)
-        has = self.record >= 0  # (P, K)
-        chosen = torch.full((B, K), -1, dtype=torch.long)
-        donor_of = torch.full((B, K), -1, dtype=torch.long)
-        s_of = torch.zeros(B, K, len(self.ages), dtype=torch.float64)
-        turn = torch.zeros(B, K, dtype=torch.float64)
-        switch = u[:, 3:3 + K] >= self.settings.persistence
-        pick = u[:, 3 + K:]
-        rank = [k[-1] if k else 0 for k in self.keys]
-        cond_of, parent_of = self.key_condition.tolist(), self.key_parent.tolist()
-        donor = pick_donors(w, u[:, 1])
-        chosen[:, 0], donor_of[:, 0] = self.record[donor, 0], donor
-        s_of[:, 0] = self.s[chosen[:, 0]]
-        turn[:, 0] = 2 * math.pi * u[:, 2]
-        for k in range(1, K):
-            cond = cond_of[k]
-            alive = chosen[:, cond] >= 0
-            if not bool(alive.any()):
+        chosen = np.full((len(seeds), len(self.keys)), -1, dtype=np.int64)
+        turn = np.zeros(chosen.shape)
+        links, walk = self.links(), self._walk_plan()
+        for b in range(len(seeds)):
+            self._walk(u[b].numpy(), w[b].numpy(), links, walk, chosen[b], turn[b])
+        chosen_t = torch.from_numpy(chosen)
+        present = chosen_t >= 0
+        rr = chosen_t.clamp(min=0)
+        log_len = self.log_length[rr] + self.settings.jitter * noise[:, LATENT:]
+        s_of = torch.where(present[..., None], self.s[rr], 0.0)
+        return chosen_t, torch.where(present, log_len.exp(), 0.0), torch.from_numpy(turn), s_of
+
+    def _walk_plan(self) -> tuple[list[list[int]], np.ndarray, np.ndarray, np.ndarray]:
+        """Per key its children keys in rank order; the records, azimuths and parent azimuths as arrays."""
+        children: list[list[int]] = [[] for _ in self.keys]
+        for k, p in enumerate(self.key_parent.tolist()):
+            if p >= 0:
+                children[p].append(k)  # keys are sorted: siblings in rank order
+        return children, self.record.numpy(), self.azimuth.numpy(), self.parent_azimuth.numpy()
+
+    def _walk(self, u: np.ndarray, w: np.ndarray, links: OrganLinks,
+              plan: tuple[list[list[int]], np.ndarray, np.ndarray, np.ndarray], chosen: np.ndarray,
+              turn: np.ndarray) -> None:
+        """One plant's organs (module doc), written into its rows ``chosen (K,)`` and ``turn (K,)``: from its
+        uniforms ``u`` (:meth:`_draws`) and kernel weights ``w (P,)``. Each organ's children are read along one
+        training organ's children; a switch moves to the organ standing in for it in another plant
+        (:class:`~torch4dtree.model.organ_table.OrganLinks`) and goes on after the child that stands in for the last
+        one taken, so switching neither repeats nor skips an organ; it waits for a landmark to match by."""
+        children, record, az, parent_az = plan
+        K = len(self.keys)
+        persistence = self.settings.persistence
+        first = int(pick_donors(torch.from_numpy(w)[None], torch.tensor([u[1]]))[0])
+        chosen[0], turn[0] = record[first, 0], 2 * math.pi * u[2]
+        for k in range(K):  # parents first
+            source = int(chosen[k])
+            if source < 0 or not children[k]:
                 continue
-            donor = donor_of[:, cond].clamp(min=0)
-            moved = alive & switch[:, k]
-            if bool(moved.any()):  # a plant near the latent among those that have the organ this one follows
-                donor = donor.clone()
-                near = torch.where(has[:, cond], w[moved].clamp_min(torch.finfo(w.dtype).tiny), 0.0)
-                donor[moved] = pick_donors(near, pick[moved, k])
-            r = torch.where(alive, self.record[donor, k], -1)
-            present = r >= 0
-            rr = r.clamp(min=0)
-            chosen[:, k] = r
-            donor_of[:, k] = torch.where(present, donor, -1)
-            s_k = self.s[rr]
-            if rank[k] > 0:  # organs sharing a node in their plant share it here too
-                before = self.record[donor, cond]
-                same = ((s_k - self.s[before.clamp(min=0)]).abs() < SAME_NODE) & (before >= 0)[:, None]
-                s_k = torch.where(same, s_of[:, cond], s_k)
-            s_of[:, k] = torch.where(present[:, None], s_k, 0.0)
-            parent = parent_of[k]
-            parent_az = self.azimuth[chosen[:, parent].clamp(min=0)] + turn[:, parent]
-            turn[:, k] = torch.where(present, parent_az - self.parent_azimuth[rr], 0.0)
-        log_len = self.log_length[chosen.clamp(min=0)] + self.settings.jitter * noise[:, LATENT:]
-        return chosen, torch.where(chosen >= 0, log_len.exp(), 0.0), turn, s_of
+            here = az[source] + turn[k]
+            standing = links.equivalent[source]  # (P,)
+            near = np.where((standing >= 0) & (links.n_kids[standing] > 0), w, 0.0)  # stand-ins with children
+            cdf = np.cumsum(near)
+            cur, i, last = source, 0, -1
+            for c in children[k]:
+                if u[3 + c] >= persistence and cdf[-1] > 0 and (last < 0 or links.landmark[last]):
+                    q = min(int(np.searchsorted(cdf, u[3 + K + c] * cdf[-1], side="right")), len(w) - 1)
+                    if int(standing[q]) != cur:
+                        cur = int(standing[q])
+                        i = links.nearest_kid(last, cur) + 1 if last >= 0 else 0
+                if i >= links.n_kids[cur] or i < 0:
+                    break
+                last = int(links.kids[cur, i])
+                i += 1
+                chosen[c], turn[c] = last, here - parent_az[last]
 
     def _frames(self, chosen: Tensor, length: Tensor, turn: Tensor, s_of: Tensor, times: Tensor, names: list[str]
                 ) -> list[TreeSequence]:
@@ -309,27 +330,29 @@ def pick_donors(weights: Tensor, u: Tensor) -> Tensor:
 
 
 def carry_parents(sizes: Tensor, key_parent: Tensor, depth: Sequence[int]) -> Tensor:
-    """Organ sizes ``(B, K, G)`` (0: absent) with every parent kept at its last size after it was last seen while one
-    of its children is there. Organs copied from different training plants keep their own timing, so a child whose
-    parent's plant had lost that parent (a tracking gap, a shed organ) would otherwise be left out of the frame; a
-    child whose parent has not appeared yet stays out until it does (no organ grows before its parent).
+    """Organ sizes ``(B, K, G)`` (0: absent) with every parent present wherever one of its children is: at its last
+    size after it was last seen, at its first size before it appeared. Organs copied from different training plants
+    keep their own timing, so a child whose parent's plant had lost that parent (a tracking gap, a shed organ), or
+    grew it later, would otherwise be left out of the frame (a sample would lag the plants it copies).
     ``key_parent (K,)`` as in :func:`assemble_frames`, ``depth`` each key's depth (0: the main branch). Returns a new
     tensor.
 
     Example:
         >>> sizes = torch.tensor([[[1.0, 2.0, 3.0], [0.0, 2.0, 0.0], [1.0, 1.0, 1.0]]])
         >>> carry_parents(sizes, torch.tensor([-1, 0, 1]), [0, 1, 2])[0, 1].tolist()
-        [0.0, 2.0, 2.0]
+        [2.0, 2.0, 2.0]
     """
     depth_t = torch.as_tensor(list(depth), dtype=torch.long)
     out = sizes.clone()
     for d in range(max(depth, default=0), 0, -1):  # deepest first: a carried child carries its parent
         children = torch.nonzero(depth_t == d).reshape(-1)
         need = torch.zeros_like(out).index_add_(1, key_parent[children], (out[:, children] > 0).to(out.dtype)) > 0
-        held = torch.cummax(out, 2).values  # the last size after it was last seen (0 before it appears)
-        fill = need & (out <= 0) & (held > 0)
+        fill = need & (out <= 0)
         if bool(fill.any()):
-            out = torch.where(fill, held, out)
+            held = torch.cummax(out, 2).values  # the last size after it was last seen (0 before it appears)
+            first = torch.where(out > 0, out, torch.inf).min(2, keepdim=True).values  # its first (smallest) size
+            first = torch.where(torch.isfinite(first), first, 0.0)  # never there at all: stays out
+            out = torch.where(fill, torch.where(held > 0, held, first), out)
     return out
 
 
