@@ -1,8 +1,8 @@
 """Do generated plants look like the plants they were learned from? Fit on train, sample, compare with held out.
 
-usage: python benchmarks/bench_generative.py TRAIN_DIR HELDOUT_DIR OUT_DIR [--n 30] [--seed 0] [--paper]
+usage: python benchmarks/bench_generative.py TRAIN_DIR HELDOUT_DIR OUT_DIR [--n N] [--seed 0] [--seeds 1] [--paper]
                                              [--label KIND] [--yardstick morpho_eval.py]
-                                             [--against-training]
+                                             [--against-training] [--events] [--json FILE]
        python benchmarks/bench_generative.py --speed OUT_DIR [--plants 100] [--frames 10] [--kind tomato]
                                              [--seed 11] [--samples 1000] [--T 32]
 
@@ -14,6 +14,19 @@ writer's own effect), prints the timings (fit seconds, decoded plants per minute
 read from the SWC files: worst median ratio at ages after the first, largest KS, 1-NNA; the training plants are the
 reference a perfect generator would reach), one row per model side by side. With ``--yardstick`` (a morphometric
 comparison script taking REAL_DIR SAMPLE_DIR), also its verdict of each folder.
+
+Plausibility over seeds (``--seeds K``, K >= 2; the protocol of the plausibility targets): each fitted model draws
+``--n`` samples (default: as many as the held-out plants, the equal-size comparison of the training plants' row)
+with each of the seeds ``--seed .. --seed + K - 1``; per seed, :func:`compare_populations` against HELDOUT_DIR
+(in memory, the same features as the SWC files give); printed: the median and the worst seed of the worst median
+ratio at each age after the first (``min(ratio, 1 / ratio)`` over the features), overall, and of the morphometric
+1-NNA. Scale row: the training plants against the held-out ones (with the same seeds, ``--n`` of them drawn without
+replacement when ``--n`` is smaller than the training set; otherwise all of them, one value), and the real plants
+(training and held out together) split at random into sets of the same sizes, one split a seed: how far two real
+samples of this population are from each other. With ``--events``,
+organs shrinking / vanishing between frames (:func:`torch4dtree.evaluate.generative_organs.event_rates`) in the
+first seed's samples (as many as training plants) beside the training and held-out plants. The first seed's
+samples are the ones written to OUT_DIR (so ``--yardstick`` checks them); ``--json FILE`` keeps every seed's numbers.
 
 Speed (``--speed``): writes ``--plants`` synthetic plants of ``--frames`` frames with the package
 (``torch4dtree synth``) into OUT_DIR/data (kept for a rerun), then times reading them, fitting the organ model and
@@ -28,15 +41,19 @@ import json
 import resource
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 
 from torch4dtree.data import run_synth
+from torch4dtree.evaluate.generative_organs import event_rates
 from torch4dtree.evaluate.morphometrics import AGES, FEATURES, compare_populations, population_curves
+from torch4dtree.evaluate.stats import summary
 from torch4dtree.io import read_dataset, write_sequence
 from torch4dtree.io.dataset import LoadOptions
 from torch4dtree.model.fourd import FourDTreeModel, sequence_validity
@@ -56,24 +73,88 @@ def write_all(out: Path, plants: list[TreeSequence]) -> list[str]:
     return problems
 
 
+def draw(model: torch.nn.Module, n: int, seed: int) -> list[TreeSequence]:
+    """``n`` decoded samples of a fitted model with one seed."""
+    return model.decode(model.sample_coefficients(n, torch.Generator().manual_seed(seed)))
+
+
 def run_model(name: str, model: torch.nn.Module, train: list[TreeSequence], out: Path, n: int, seed: int) -> dict:
     """Fit, sample ``n`` plants, write them; the timings and validity."""
     t0 = time.perf_counter()
     model.fit(train)
     fit_s = time.perf_counter() - t0
     t0 = time.perf_counter()
-    z = model.sample_coefficients(n, torch.Generator().manual_seed(seed))
-    plants = model.decode(z)
+    plants = draw(model, n, seed)
     sample_s = time.perf_counter() - t0
     problems = write_all(out / name, plants)
     return {"model": name, "fit_seconds": fit_s, "plants_per_minute": 60 * n / max(sample_s, 1e-9),
             "invalid": problems[:5], "n_invalid": len(problems)}
 
 
+SEED_KEYS = ("worst_ratio", "one_nna", *(f"{u}" for u in AGES if u > 0))
+
+
+def _per_seed(real: np.ndarray, samples: np.ndarray) -> dict:
+    """One seed's summaries: worst median ratio overall and at each age after the first, its name, 1-NNA."""
+    c = compare_populations(real, samples)
+    return {"worst_ratio": c["worst_ratio"], "worst": c["worst"], "one_nna": c["one_nna"], **c["worst_by_age"]}
+
+
+def seed_protocol(models: dict[str, torch.nn.Module], train_dir: Path, heldout_dir: Path, n: int, seeds: list[int]
+                  ) -> dict[str, dict]:
+    """The plausibility protocol over seeds (module doc): ``{row: {"seeds": [per seed], "summary": {key: summary}}}``
+    for each fitted model and the scale rows; real plants read from their folders' SWC files, as the yardstick
+    reads them."""
+    real = population_curves(heldout_dir)
+    train_curves = population_curves(train_dir)
+    out: dict[str, dict] = {}
+    for name, model in models.items():
+        out[name] = {"seeds": [_per_seed(real, population_curves(draw(model, n, s))) for s in seeds]}
+    if n < len(train_curves):
+        picks = [torch.randperm(len(train_curves), generator=torch.Generator().manual_seed(s))[:n].numpy()
+                 for s in seeds]
+        out["training plants"] = {"seeds": [_per_seed(real, train_curves[p]) for p in picks]}
+    else:
+        out["training plants"] = {"seeds": [_per_seed(real, train_curves)]}
+    both = np.concatenate([train_curves, real])
+    perms = [torch.randperm(len(both), generator=torch.Generator().manual_seed(s)).numpy() for s in seeds]
+    k = len(train_curves)
+    out["random splits of the real plants"] = {"seeds": [_per_seed(both[p[k:]], both[p[:k]]) for p in perms]}
+    for row in out.values():
+        row["summary"] = {k: summary(r[k] for r in row["seeds"]) for k in SEED_KEYS}
+    return out
+
+
+def seed_table(result: dict[str, dict], label: str, n: int, held: int) -> list[str]:
+    """Markdown: median (worst seed) of the worst median ratio at each age, overall, and of the 1-NNA."""
+    ages = [f"{u}" for u in AGES if u > 0]
+    lines = [f"| {label} ({n} samples a seed vs {held} held out) | seeds | " + " | ".join(f"worst ratio @ {u}"
+                                                                                           for u in ages)
+             + " | worst ratio | 1-NNA |", "|---|---|" + "---|" * (len(ages) + 2)]
+    for name, row in result.items():
+        sm = row["summary"]
+        lines.append(f"| {name} | {sm['one_nna']['n']} | " + " | ".join(median_worst(sm[u], "min") for u in ages)
+                     + f" | {median_worst(sm['worst_ratio'], 'min')} | {median_worst(sm['one_nna'], 'max')} |")
+    return lines
+
+
+def median_worst(x: dict, worst: str) -> str:
+    """``median (worst)`` of a summary over seeds; ``worst`` its key of the worst seed (``min`` or ``max``)."""
+    return f"{x['median']:.2f}" if x["n"] == 1 else f"{x['median']:.2f} ({x[worst]:.2f})"
+
+
 def yardstick(script: str, real: Path, samples: Path) -> str:
-    """The output of ``script REAL SAMPLES`` (its verdict)."""
-    res = subprocess.run([sys.executable, script, str(real), str(samples)], capture_output=True, text=True, check=True)
-    return res.stdout
+    """The output of ``script REAL SAMPLES`` (its verdict), then how far :func:`compare_populations` of the same
+    folders is from it (``script --json``): the largest gap of a median ratio and of the 1-NNA."""
+    with tempfile.TemporaryDirectory() as tmp:
+        js = Path(tmp) / "yardstick.json"
+        res = subprocess.run([sys.executable, script, str(real), str(samples), "--json", str(js)], capture_output=True,
+                             text=True, check=True)
+        theirs = json.loads(js.read_text())
+    ours = compare_populations(population_curves(real), population_curves(samples))
+    gap = max(abs(ours["features"][k]["ratio"] - v["ratio"]) for k, v in theirs["features"].items())
+    return res.stdout + (f"agreement with compare_populations: largest median-ratio gap {gap:.2e}, 1-NNA gap "
+                         f"{abs(ours['one_nna'] - theirs['one_nna']):.2e}\n")
 
 
 def morphometric_table(heldout: Path, folders: dict[str, Path], label: str) -> list[str]:
@@ -128,7 +209,10 @@ def speed(out: Path, plants: int, frames: int, kind: str, seed: int, samples: in
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("folders", nargs="+", help="TRAIN_DIR HELDOUT_DIR OUT_DIR, or OUT_DIR with --speed")
-    ap.add_argument("--n", type=int, default=30)
+    ap.add_argument("--n", type=int, default=None, help="samples a model draws (default: as many as held-out plants)")
+    ap.add_argument("--seeds", type=int, default=1, help="the plausibility protocol over this many seeds (module doc)")
+    ap.add_argument("--events", action="store_true", help="organs shrinking / vanishing: samples beside real plants")
+    ap.add_argument("--json", default=None, help="write the protocol's numbers here")
     ap.add_argument("--seed", type=int, default=None, help="samples' seed (0), or the speed data's seed (11)")
     ap.add_argument("--T", type=int, default=32)
     ap.add_argument("--paper", action="store_true", help="also fit the paper's FourDTreeModel (slow)")
@@ -152,9 +236,12 @@ def main() -> None:
     train_dir, heldout, out = (Path(f) for f in a.folders)
     seed = 0 if a.seed is None else a.seed
     train = [s.sequence for s in read_dataset(train_dir, LoadOptions(T=a.T))]
-    results = [run_model("organs", OrganModel(), train, out, a.n, seed)]
+    held = [s.sequence for s in read_dataset(heldout, LoadOptions(T=a.T))]
+    n = len(held) if a.n is None else a.n
+    models: dict[str, torch.nn.Module] = {"organs": OrganModel()}
     if a.paper:
-        results.append(run_model("paper", FourDTreeModel(), train, out, a.n, seed))
+        models["paper"] = FourDTreeModel()
+    results = [run_model(name, m, train, out, n, seed) for name, m in models.items()]
     write_all(out / "train_roundtrip", train)
     for r in results:
         print(json.dumps(r))
@@ -164,10 +251,28 @@ def main() -> None:
     if a.against_training:
         print("\n".join(morphometric_table(train_dir, {k: v for k, v in folders.items() if "model" in k},
                                             f"{a.label} (reference: the training plants)")))
+    record: dict[str, Any] = {"label": a.label, "n": n, "held_out": len(held), "training": len(train),
+                              "fits": results}
+    if a.seeds > 1:
+        seeds = list(range(seed, seed + a.seeds))
+        protocol = seed_protocol({f"{k} model": m for k, m in models.items()}, train_dir, heldout, n, seeds)
+        print("\n".join(seed_table(protocol, a.label, n, len(held))))
+        record["seeds"] = seeds
+        record["protocol"] = protocol
+    if a.events:
+        k = len(train)
+        ev = {f"{name} model": event_rates(draw(m, k, seed)) for name, m in models.items()}
+        ev |= {"training plants": event_rates(train), "held-out plants": event_rates(held)}
+        print("| organs between frames | shrink | vanish | organ steps |\n|---|---|---|---|")
+        for who, e in ev.items():
+            print(f"| {who} | {100 * e['shrink']:.2f} % | {100 * e['vanish']:.2f} % | {e['organ_steps']:.0f} |")
+        record["events"] = ev
     if a.yardstick:
         for folder in folders.values():
             print(f"== {folder.name} vs held out")
             print(yardstick(a.yardstick, heldout, folder))
+    if a.json:
+        Path(a.json).write_text(json.dumps(record, indent=1))
 
 
 if __name__ == "__main__":

@@ -4,15 +4,18 @@ novelty checks on a small population."""
 
 from __future__ import annotations
 
+import argparse
 import json
 import math
+from pathlib import Path
 
 import pytest
 import torch
 
 from torch4dtree.data.synthetic import synthetic_plant
-from torch4dtree.evaluate import EvalSettings, dumps, load_eval_data
+from torch4dtree.evaluate import EvalData, EvalSettings, Plant4D, dumps, load_eval_data
 from torch4dtree.evaluate import generative as gen
+from torch4dtree.evaluate import generative_split as split
 from torch4dtree.evaluate.generative_organs import event_rates, organ_events
 from torch4dtree.evaluate.morphometrics import compare_populations, population_curves
 from torch4dtree.model.organs import OrganModel
@@ -72,9 +75,54 @@ def test_folds_cover_every_plant_once() -> None:
         folds = gen.folds_of(n, torch.Generator().manual_seed(3))
         assert sorted(i for f in folds for i in f) == list(range(n))
         assert all(len(f) >= 2 and n - len(f) >= 2 for f in folds)
-        assert len(folds) == min(n // 2, gen.MAX_FOLDS)
+        assert len(folds) == min(n // 2, split.MAX_FOLDS)
         assert folds == gen.folds_of(n, torch.Generator().manual_seed(3))
     assert gen.folds_of(3, torch.Generator()) == []
+
+
+def _plants(n: int, prefix: str = "p") -> list[Plant4D]:
+    seq = synthetic_plant("maize", seed=0, n_frames=2, T=8).sequence
+    return [Plant4D("maize", f"{prefix}{i}", seq, [Path(f"/{prefix}/{i}/day_0.swc")]) for i in range(n)]
+
+
+def test_splits_fit_on_half_or_on_a_given_folder() -> None:
+    plants = _plants(40)
+    halves = split.splits(plants, split.GenerativeSettings(folds=2), torch.Generator().manual_seed(0))
+    assert [(len(t), len(h)) for t, h in halves] == [(20, 20), (20, 20)]
+    assert {p.name for p in halves[0][1]} == {p.name for p in halves[1][0]}  # each half held out once
+    quick = split.splits(plants, split.GenerativeSettings(quick=True), torch.Generator().manual_seed(0))
+    assert [(len(t), len(h)) for t, h in quick] == [(27, 13)]  # 3 folds, the largest training set
+    held = _plants(20, "h")
+    assert split.splits(plants[:20], split.GenerativeSettings(), torch.Generator(), held) == [(plants[:20], held)]
+    assert split.splits(plants[:1], split.GenerativeSettings(), torch.Generator(), held) == []
+    train, other = EvalData(Path("a"), "folder", plants[:20]), EvalData(Path("b"), "synthetic", held)
+    assert split.heldout_by_kind(train, other) == {"maize": held}
+    with pytest.raises(ValueError, match="also training plants"):
+        split.heldout_by_kind(train, EvalData(Path("b"), "folder", plants[5:7]))
+    with pytest.raises(ValueError, match="folds"):
+        split.GenerativeSettings(folds=1)
+    assert split.GenerativeSettings.of(EvalSettings(T=16, seed=3)) == split.GenerativeSettings(T=16, seed=3)
+
+
+def test_cli_split_options(tmp_path: Path) -> None:
+    from torch4dtree.cli.evaluate import add_arguments, settings_from_args
+    from torch4dtree.cli.options import UsageError
+
+    p = argparse.ArgumentParser()
+    add_arguments(p)
+    (tmp_path / "train").mkdir()
+    (tmp_path / "held").mkdir()
+    s = settings_from_args(p.parse_args([str(tmp_path / "train"), "--heldout", str(tmp_path / "held"), "--draws", "7",
+                                         "--T", "16"]))
+    assert (s.heldout, s.folds, s.morpho_draws, s.T) == (str(tmp_path / "held"), split.MAX_FOLDS, 7, 16)
+    s = settings_from_args(p.parse_args([str(tmp_path / "train"), "--folds", "2"]))
+    assert (s.heldout, s.folds, s.morpho_draws) == (None, 2, split.MORPHO_DRAWS)
+    with pytest.raises(UsageError):
+        settings_from_args(p.parse_args([str(tmp_path / "train"), "--heldout", str(tmp_path / "held"), "--folds", "2"]))
+    with pytest.raises(UsageError):
+        settings_from_args(p.parse_args([str(tmp_path / "train"), "--heldout", str(tmp_path / "train")]))
+    with pytest.raises(FileNotFoundError):
+        settings_from_args(p.parse_args([str(tmp_path / "train"), "--heldout", str(tmp_path / "none")]))
 
 
 def test_ground_metric_is_symmetric_and_the_better_direction() -> None:

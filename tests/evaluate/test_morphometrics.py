@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 import torch
 
-from torch4dtree.evaluate import EvalSettings, generative, load_eval_data
+from torch4dtree.evaluate import EvalData, generative, load_eval_data
+from torch4dtree.evaluate.generative_split import QUICK_MORPHO_DRAWS, GenerativeSettings
 from torch4dtree.evaluate.morphometrics import (
     AGES,
     FEATURES,
@@ -136,17 +137,32 @@ def test_a_lost_organ_shows(folders: tuple[Path, Path]) -> None:
 
 
 def test_the_generative_section_reports_morphometrics(synthetic_folder: Callable[..., Path]) -> None:
-    """``evaluate --sections generative``: each generator's samples compared with the held-out plants."""
-    datas = {"synthetic": load_eval_data(synthetic_folder(5, 0, 5), "synthetic", T=16)}
-    out = generative.run(datas, EvalSettings(T=16, quick=True), False)["generative"]
+    """``evaluate --sections generative --heldout DIR``: each generator's samples compared with the held-out plants,
+    over draws of as many samples as held-out plants; the training plants (one draw) are the scale."""
+    data = load_eval_data(synthetic_folder(5, 0, 5), "synthetic", T=16)
+    train = EvalData(data.root, data.source, data.plants[:3])
+    held = EvalData(data.root, data.source, data.plants[3:])
+    out = generative.run({"synthetic": train}, GenerativeSettings(T=16, quick=True), False, heldout=held)["generative"]
     kind = out["kinds"]["tomato"]
+    assert kind["split"] == "held-out folder" and len(kind["folds"]) == 1 and kind["plants"] == 5
+    assert kind["folds"][0]["held_out"] == [p.name for p in held.plants]
+    assert kind["folds"][0]["train"] == [p.name for p in train.plants]
     fold = kind["folds"][0]["morphometrics"]
     assert set(fold) == set(kind["morphometrics"]) == set(generative.MORPHO_GENERATORS)  # the organ model too
-    for name, r in fold.items():
-        assert r["real_plants"] == len(kind["folds"][0]["held_out"])
-        assert r["samples"] == (len(kind["folds"][0]["train"]) if name == "memorise" else
-                                1 if name == "mean" else generative.QUICK_MORPHO_SAMPLES)
-        assert 0 <= r["ks_max"] <= 1 and 0 <= r["one_nna"] <= 1 and 0 <= r["worst_ratio"] <= 1
-    # the memorised training plants are real plants of the same kind: their sizes are those of the held-out ones
-    assert fold["memorise"]["features"]["length@1.0"]["ratio"] == pytest.approx(1, abs=0.5)
-    assert any("Morphometrics" in line for line in generative.markdown({"generative": out}))
+    draws = QUICK_MORPHO_DRAWS
+    for name, rs in fold.items():
+        assert len(rs) == (1 if name in ("memorise", "mean") else draws) == kind["morphometrics"][name]["draws"], name
+        for r in rs:
+            assert 0 <= r["ks_max"] <= 1 and 0 <= r["one_nna"] <= 1 and 0 <= r["worst_ratio"] <= 1
+            assert r["worst_ratio"] == min(r["worst_by_age"].values()), name
+        s = kind["morphometrics"][name]
+        assert s["worst_ratio"]["min"] <= s["worst_ratio"]["median"] and s["one_nna"]["n"] == len(rs)
+    # the memorised training plants are real plants of the same kind: their sizes are near the held-out ones
+    assert fold["memorise"][0]["worst_ratio"] > 0.4
+    # real plants are read from their files, as the yardstick reads the folders: the same numbers
+    folder = {n: np.stack([folder_curve(p.files[0].parent) for p in d.plants]) for n, d in (("t", train), ("h", held))}
+    c = compare_populations(folder["h"], folder["t"])
+    assert {k: fold["memorise"][0][k] for k in ("worst_ratio", "one_nna", "ks_max")} == {
+        k: c[k] for k in ("worst_ratio", "one_nna", "ks_max")}
+    md = "\n".join(generative.markdown({"generative": out}))
+    assert "Morphometrics" in md and "| @ 0.25 |" in md and "held-out folder" in md

@@ -5,6 +5,11 @@ a synthetic dataset folder (``torch4dtree synth``) or any dataset folder ``fit``
 Writes ``report.md`` (tables with the paper's figures beside ours, figures) and ``report.json`` into ``--out`` (a new
 or empty folder; ``--overwrite`` replaces an earlier report there); ``--json`` prints the report as one JSON object.
 See :mod:`torch4dtree.evaluate`.
+
+The generative section holds plants out per kind: ``--folds K`` folds, each held out once (``--folds 2`` on 40 plants:
+fit on 20, 20 held out, both ways), or ``--heldout DIR``: fit on ``DATA_DIR``'s plants, measure on ``DIR``'s (one
+fold; e.g. ``evaluate pop/train --heldout pop/heldout --sections generative``). ``--draws N``: morphometric draws per
+generator, summarised by their median and worst.
 """
 
 from __future__ import annotations
@@ -12,9 +17,13 @@ from __future__ import annotations
 import argparse
 import shutil
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ..settings import CROSS_LP, CROSS_ORDER_TOL, CROSS_POSITIONS, POSITIONS
 from .options import UsageError, add_executor_arguments, executor_from_args, int_at_least
+
+if TYPE_CHECKING:
+    from ..evaluate.generative_split import GenerativeSettings
 
 SECTION_NAMES = ("spatial", "temporal", "generative", "truth", "robustness")
 
@@ -56,6 +65,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "siblings within TOL of each other (a fraction of the parent) in any order; 'none': any "
                         "order (default: %(default)s)")
     p.add_argument("--seed", type=int, default=0, help="seed of every random choice (default: %(default)s)")
+    p.add_argument("--heldout", default=None, metavar="DIR",
+                   help="generative section: hold out the plants of DIR (a folder as DATA) and fit on DATA's plants, "
+                        "instead of folds (default: folds)")
+    p.add_argument("--folds", type=int_at_least(2), default=None, metavar="K",
+                   help="generative section: at most K folds per kind, each held out once (2: half the plants fit, "
+                        "half held out) (default: %(default)s, the section's 3)")
+    p.add_argument("--draws", type=int_at_least(1), default=None, metavar="N",
+                   help="generative section: morphometric draws per generator and fold, each of as many samples as "
+                        "held-out plants; median and worst reported (default: %(default)s, the section's 5)")
     p.add_argument("--no-figures", action="store_true", help="skip the rendered figures")
     p.add_argument("--overwrite", action="store_true", help="replace an earlier report in --out")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
@@ -72,8 +90,27 @@ def _prepare_out(out: Path, overwrite: bool) -> None:
     shutil.rmtree(out)
 
 
+def settings_from_args(args: argparse.Namespace, figures: bool = True) -> GenerativeSettings:
+    """The evaluation's settings from parsed arguments (``figures``: an output folder is given)."""
+    from ..evaluate.generative_split import GenerativeSettings
+
+    if args.heldout is not None and args.folds is not None:
+        raise UsageError("--heldout and --folds: give one split (a held-out folder is one fold)")
+    split = {k: v for k, v in (("folds", args.folds), ("morpho_draws", args.draws)) if v is not None}
+    if args.heldout is not None:
+        heldout = Path(args.heldout)
+        if not heldout.is_dir():
+            raise FileNotFoundError(f"--heldout {heldout}: no such folder")
+        if heldout.resolve() == Path(args.data).resolve():
+            raise UsageError("--heldout: the held-out folder is the data folder")
+    return GenerativeSettings(T=args.T, T_cycle=args.T_cycle, n_t=args.n_t, quick=args.quick, seed=args.seed,
+                              figures=not args.no_figures and figures, cross_positions=args.cross_positions,
+                              cross_lp=args.cross_lp, cross_order_tol=args.cross_order_tol, heldout=args.heldout,
+                              **split)
+
+
 def run(args: argparse.Namespace) -> int:
-    from ..evaluate import EvalSettings, dumps, evaluate
+    from ..evaluate import dumps, evaluate
 
     sections = [s.strip() for s in args.sections.split(",") if s.strip()]
     unknown = [s for s in sections if s not in SECTION_NAMES]
@@ -85,9 +122,7 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else None
     if out is not None:
         _prepare_out(out, args.overwrite)
-    settings = EvalSettings(T=args.T, T_cycle=args.T_cycle, n_t=args.n_t, quick=args.quick, seed=args.seed,
-                            figures=not args.no_figures and out is not None, cross_positions=args.cross_positions,
-                            cross_lp=args.cross_lp, cross_order_tol=args.cross_order_tol)
+    settings = settings_from_args(args, out is not None)
     with executor_from_args(args) as executor:
         report = evaluate(data, out, settings, sections, progress=not args.quiet, executor=executor)
     if args.json:

@@ -22,15 +22,19 @@ square over frames of the tree distance they carry, as ``FourDTreeModel.score().
 share of the frames' squared norm), as is the part off the tree PCA (``off_tree_space``, ``off_tree_space_share`` of
 the frames' squared spread about the tree mean).
 
-**Split.** A seeded permutation (``settings.generator``) of the plants of a kind is cut into ``min(N // 2, 3)``
-near-equal folds, so every plant is held out exactly once and every held-out set has at least 2 plants (COV and
-1-NNA are meaningless with one). ``quick``: only the fold with the largest training set. Kinds with fewer than 4
-plants are skipped. Pheno4D ``mat``: tomato 5 plants -> folds of 3 and 2 held out (training on 2 and 3), maize 4 ->
-2 and 2 (training on 2: one mode). With so few plants the numbers are a coarse sanity check: they can show a
-generator that collapses (the 4D mean), one that memorises, or samples that are far from every real plant; they
-cannot rank close generators (a held-out set of 2 gives COV in {0, 1/2, 1} per draw) and say nothing about
-plants unlike the 5 tomatoes / 4 maize. Only one source is evaluated: ``mat`` if present, else ``synthetic``,
-else ``swc`` (a second source would at least double the section's time, and the raw SWC skeletons are larger).
+**Split** (:mod:`~torch4dtree.evaluate.generative_split`, settings
+:class:`~torch4dtree.evaluate.generative_split.GenerativeSettings`): per kind, a seeded permutation
+(``settings.generator``) of the plants is cut into ``min(N // 2, folds)`` near-equal folds (``folds`` 3 by default,
+2 for the fit-on-20 / 20-held-out protocol on 40 plants), so every plant is held out exactly once and every held-out
+set has at least 2 plants (COV and 1-NNA are meaningless with one); or, with ``heldout`` (a folder), the data
+folder's plants are fit and the held-out folder's plants held out, one fold. ``quick``: only the fold with the
+largest training set. Kinds with fewer than 4 plants (2 a side) are skipped. Pheno4D ``mat``: tomato 5 plants ->
+folds of 3 and 2 held out (training on 2 and 3), maize 4 -> 2 and 2 (training on 2: one mode). With so few plants
+the numbers are a coarse sanity check: they can show a generator that collapses (the 4D mean), one that memorises,
+or samples that are far from every real plant; they cannot rank close generators (a held-out set of 2 gives COV in
+{0, 1/2, 1} per draw) and say nothing about plants unlike the 5 tomatoes / 4 maize. Only one source is evaluated:
+``mat`` if present, else ``synthetic``, else ``swc`` (a second source would at least double the section's time, and
+the raw SWC skeletons are larger).
 
 **The organ model** (:class:`~torch4dtree.model.OrganModel`, the default of ``fit``; fit on the same training
 plants) has no tree space of its own: its samples are written in the fold's layout as the held-out plants are
@@ -63,6 +67,17 @@ real 0 %, so the report's verdicts rank 1-NNA by how far both accuracies are fro
 generator evaluated against the training set itself must give MMD 0, COV 1, 1-NNA 0. ``novelty``: the share of
 samples closer to a training plant than the median nearest-neighbour distance between training plants divided by 4.
 
+**Morphometrics** (:mod:`~torch4dtree.evaluate.morphometrics`, independent of the ground metric): each generator's
+samples decoded to skeletons against the held-out plants, on ``settings.morpho_draws`` independent draws per fold of
+as many samples as held-out plants (the organ model's drawn apart from its pool above; the paper model's the first
+trajectories of its pool; the 4D mean one draw of one plant); ``memorise``'s one draw is the training plants
+themselves, the scale a perfect generator would reach. Real plants are read from their frame files, as the
+independent yardstick reads them (the same numbers on the same folders). Summarised over all draws of all folds:
+the median and the worst draw of the worst median ratio (overall and at each age after the first) and of the
+morphometric 1-NNA.
+Organs shrinking / vanishing between frames are counted on the first ``len(train)`` samples of each model, beside
+the training and the held-out plants.
+
 **Reconstruction.** A held-out plant's tree-PCA trajectory, registered onto the 4D mean and projected on the modes,
 back to a trajectory (``encode -> decode`` in the tree space): its ground distance to the plant (so it includes the
 part off the tree PCA), beside the distance to the 4D mean (no modes) and to the nearest training plant
@@ -89,6 +104,7 @@ import time
 from concurrent.futures import Executor
 from typing import Any
 
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -99,17 +115,18 @@ from ..temporal.registration import register_trajectories, time_warp_trajectory
 from ..temporal.trajectory import resample_trajectory
 from ..trees.structures import TreeSequence
 from .data import EvalData, EvalSettings, Plant4D, primary_source
-from .generative_organs import event_rates, organ_forecast, outside_keys_share
+from .generative_organs import event_rates, organ_forecasts, outside_keys_share
 from .generative_report import markdown
-from .morphometrics import compare_populations, population_curves
+from .generative_split import GenerativeSettings, folds_of, heldout_by_kind, load_heldout, splits
+from .morphometrics import AGES, compare_populations, files_curve, population_curves
 from .paper import SECONDS
 from .stats import summary
 
-__all__ = ["GENERATORS", "distance4d", "distance_matrix", "folds_of", "markdown", "novelty", "run", "set_metrics"]
+__all__ = ["GENERATORS", "GenerativeSettings", "distance4d", "distance_matrix", "folds_of", "markdown", "novelty",
+           "run", "set_metrics"]
 
 # generator streams of this section (settings.generator(offset)): split, then samples per fold
 SEED_OFFSET = 300
-MAX_FOLDS = 3
 DRAWS, QUICK_DRAWS = 50, 4
 QUICK_N_T = 12
 # the authors' synthesis script: one uniform scalar in [-0.5, 0.5] on the first three standardised modes
@@ -135,10 +152,10 @@ DECODE_BATCH, QUICK_DECODE_BATCH = 8, 2
 PAPER_SECONDS = {"sample": SECONDS["sample"], "mean": SECONDS["mean_4d"]}
 CHUNK = 2048  # pairs per registration call (memory)
 MEAN_REPEATS = 3  # warm refits of the 4D mean timed per fold (median): the fit's own first call loads kernels
-# decoded samples per generator and fold for the morphometrics (the organ model: at least as many as held-out
-# plants, also its samples in the ground metric)
+# the organ model's samples in the ground metric per fold: at least as many as held-out plants
 MORPHO_SAMPLES, QUICK_MORPHO_SAMPLES = 10, 2
 MORPHO_KEYS = ("worst_ratio", "ks_max", "one_nna")
+MORPHO_AGES = tuple(f"{u}" for u in AGES if u > 0)
 MORPHO_GENERATORS = ("organs", *GENERATORS)
 # organs shrinking / vanishing between frames: both models' samples, the training and the held-out plants
 EVENT_ROWS = ("organs", "model", "training", "held_out")
@@ -193,16 +210,6 @@ def novelty(d_st: Tensor, d_tt: Tensor, divisor: float = NOVELTY_DIVISOR) -> dic
     return {"threshold": threshold, "share_closer": float((nearest < threshold).double().mean()),
             "nearest_min": float(nearest.min()), "nearest_median": float(nearest.median()),
             "training_nn_median": threshold * divisor}
-
-
-def folds_of(n: int, generator: torch.Generator, max_folds: int = MAX_FOLDS) -> list[list[int]]:
-    """Held-out index sets: a permutation of ``range(n)`` cut into ``min(n // 2, max_folds)`` near-equal folds
-    (each of at least 2 plants, each training set of at least 2); empty when ``n < 4``."""
-    k = min(n // 2, max_folds)
-    if n < 4 or k < 2:
-        return []
-    perm = torch.randperm(n, generator=generator)
-    return [sorted(int(i) for i in f) for f in torch.tensor_split(perm, k)]
 
 
 # ----------------------------------------------------------------------------- one fold
@@ -325,19 +332,41 @@ def _forecast(model: FourDTreeModel, plant: Plant4D, frames: Tensor) -> dict[str
 
 
 def _morphometrics(model: FourDTreeModel, pools: dict[str, Tensor], organ_samples: list[TreeSequence],
-                   train: list[Plant4D], held: list[Plant4D], n: int
-                   ) -> tuple[dict[str, dict[str, Any]], dict[str, list[TreeSequence]]]:
+                   train: list[Plant4D], held: list[Plant4D], draws: int
+                   ) -> tuple[dict[str, list[dict[str, Any]]], dict[str, list[TreeSequence]]]:
     """Each generator's samples against the held-out plants by :func:`~torch4dtree.evaluate.morphometrics.
-    compare_populations`: the first ``n`` trajectories of its pool ``(P, n_t, k)`` decoded to skeletons; the
-    memorising generator's samples are the training plants as read; ``organs``: the organ model's first ``n``
-    samples. Independent of the ground metric: it sees plants that shrink, lose organs or sprout extra ones. Also
+    compare_populations`, one result per draw of ``len(held)`` samples (module doc): the organ model's
+    ``organ_samples`` cut into ``draws`` draws; the first ``draws * len(held)`` trajectories of each paper pool
+    ``(P, n_t, k)`` decoded to skeletons; the memorising generator's one draw the training plants as read. Also
     returns each generator's 4D trees."""
-    real = population_curves([p.sequence for p in held])
-    seqs = {"organs": organ_samples[:n]}
+    h = len(held)
+    real = _real_curves(held)
+    seqs = {"organs": organ_samples}
     for name, pool in pools.items():
         if name in GENERATORS:
-            seqs[name] = [p.sequence for p in train] if name == "memorise" else model.decode_trajectories(pool[:n])
-    return {name: compare_populations(real, population_curves(s)) for name, s in seqs.items()}, seqs
+            seqs[name] = ([p.sequence for p in train] if name == "memorise"
+                          else model.decode_trajectories(pool[:draws * h]))
+    out: dict[str, list[dict[str, Any]]] = {}
+    for name, s in seqs.items():
+        if name == "memorise":  # one draw: the training plants
+            out[name] = [_slim(compare_populations(real, _real_curves(train)))]
+            continue
+        curves = population_curves(s)
+        out[name] = [_slim(compare_populations(real, curves[i:i + h])) for i in range(0, len(curves), h)]
+    return out, seqs
+
+
+def _real_curves(plants: list[Plant4D]) -> np.ndarray:
+    """``(P, A, F)`` morphometric curves of real plants from their frame files (as the yardstick reads them: the
+    trees read at ``T`` points per branch are up to 2 % shorter), from their trees when a plant has no files."""
+    if all(len(p.files) == len(p.sequence) for p in plants):
+        return np.stack([files_curve(p.files, p.sequence.times.tolist()) for p in plants])
+    return population_curves([p.sequence for p in plants])
+
+
+def _slim(c: dict[str, Any]) -> dict[str, Any]:
+    """A morphometric comparison without its per-feature table (the summaries of one draw)."""
+    return {k: c[k] for k in (*MORPHO_KEYS, "worst", "worst_by_age")}
 
 
 def _trajectories(frames: list[Tensor], plants: list[TreeSequence], n_t: int) -> Tensor:
@@ -352,25 +381,6 @@ def _fit_organs(train: list[Plant4D]) -> tuple[OrganModel, float]:
     return organs, time.perf_counter() - t0
 
 
-def _organ_forecasts(model: FourDTreeModel, organs: OrganModel, held: list[Plant4D], encs: list[Any],
-                     gen: torch.Generator) -> list[dict[str, Any] | None]:
-    """:func:`~torch4dtree.evaluate.generative_organs.organ_forecast` of every held-out plant; the 4D mean
-    baseline at the plant's ages as in :func:`_forecast`."""
-    out: list[dict[str, Any] | None] = []
-    for p, e in zip(held, encs):
-        seq = p.sequence
-        half = len(seq) // 2
-        if half < 1:
-            out.append(None)
-            continue
-        u = ((seq.times[half:] - seq.times[0]).to(torch.float64) / float(model.duration)).clamp(0, 1)
-        mean = model.population.pca.inverse_features(time_warp_trajectory(model.mean.trajectory,
-                                                                          u.to(model.mean.trajectory)))
-        truth = e.aligned.features()[half:]
-        out.append(organ_forecast(model, organs, seq, truth, mean, gen))
-    return out
-
-
 def _fold(train: list[Plant4D], held: list[Plant4D], settings: EvalSettings, gen: torch.Generator,
           executor: Executor | None = None) -> dict[str, Any]:
     model, fit_seconds = _fit(train, settings, executor)
@@ -380,9 +390,11 @@ def _fold(train: list[Plant4D], held: list[Plant4D], settings: EvalSettings, gen
     encode_seconds = (time.perf_counter() - t0) / len(held)
     h = len(held)
     n_morpho = QUICK_MORPHO_SAMPLES if settings.quick else MORPHO_SAMPLES
+    morpho_draws = GenerativeSettings.of(settings).draws()
     t0 = time.perf_counter()
     organ_samples = organs.sample(max(h, n_morpho), generator=gen)
     organ_sample_seconds = (time.perf_counter() - t0) / len(organ_samples)
+    organ_morpho = organs.sample(morpho_draws * h, generator=gen)
     train_seqs = [p.sequence for p in train]
     t0 = time.perf_counter()
     enc_organs = model.population.transform_many(organ_samples, executor)
@@ -425,10 +437,11 @@ def _fold(train: list[Plant4D], held: list[Plant4D], settings: EvalSettings, gen
             novel[name] = novelty(distance_matrix(pool, te_alpha, executor=executor), d_tete)
     metric_seconds = time.perf_counter() - t0
     t0 = time.perf_counter()
-    morpho, decoded = _morphometrics(model, pools, organ_samples, train, held, n_morpho)
+    morpho, decoded = _morphometrics(model, pools, organ_morpho, train, held, morpho_draws)
     morpho_seconds = time.perf_counter() - t0
     t0 = time.perf_counter()
-    events = {"organs": event_rates(decoded["organs"]), "model": event_rates(decoded["model"]),
+    n_ev = len(train)  # as many samples as training plants
+    events = {"organs": event_rates(decoded["organs"][:n_ev]), "model": event_rates(decoded["model"][:n_ev]),
               "training": event_rates(train_seqs), "held_out": event_rates([p.sequence for p in held])}
     event_seconds = time.perf_counter() - t0
     sanity = {m: v for m, v in set_metrics(d_tt, d_tt, d_tt).items() if m in METRICS}  # training set memorised
@@ -440,7 +453,7 @@ def _fold(train: list[Plant4D], held: list[Plant4D], settings: EvalSettings, gen
     recon_t = distance4d(t_alpha, _pad(_reconstruct(model, t_alpha[..., :k]), r))
     mean_t = distance4d(t_alpha, mean.expand_as(t_alpha))
     t0 = time.perf_counter()
-    organ_fc = _organ_forecasts(model, organs, held, encs, gen)
+    organ_fc = organ_forecasts(model, organs, [p.sequence for p in held], encs, gen)
     organ_forecast_seconds = (time.perf_counter() - t0) / len(held)
     plants = []
     for i, (p, e) in enumerate(zip(held, encs)):
@@ -491,28 +504,26 @@ def _fold(train: list[Plant4D], held: list[Plant4D], settings: EvalSettings, gen
 
 
 # ----------------------------------------------------------------------------- the section
-def _kind(plants: list[Plant4D], settings: EvalSettings, offset: int, progress: bool,
-          executor: Executor | None = None) -> dict[str, Any]:
-    folds = folds_of(len(plants), settings.generator(SEED_OFFSET + offset))
+def _kind(plants: list[Plant4D], settings: GenerativeSettings, offset: int, progress: bool,
+          executor: Executor | None = None, heldout: list[Plant4D] | None = None) -> dict[str, Any]:
+    folds = splits(plants, settings, settings.generator(SEED_OFFSET + offset), heldout)
+    n = len(plants) + len(heldout or [])
     if not folds:
-        return {"plants": len(plants), "skipped": f"{len(plants)} plants: at least 4 are needed (2 to fit, 2 held out)"}
-    if settings.quick:  # the fold with the largest training set
-        folds = [min(folds, key=len)]
+        return {"plants": n, "skipped": f"{len(plants)} plants" + (f" and {len(heldout)} held out" if heldout else "")
+                + ": at least 2 to fit and 2 held out are needed"}
     gen = settings.generator(SEED_OFFSET + offset + 1)
     from tqdm.auto import tqdm
 
-    done = []
-    for f in tqdm(folds, disable=not progress, desc="generative folds", unit="fold"):
-        held = set(f)
-        done.append(_fold([p for i, p in enumerate(plants) if i not in held], [plants[i] for i in f], settings, gen,
-                          executor))
+    done = [_fold(train, held, settings, gen, executor)
+            for train, held in tqdm(folds, disable=not progress, desc="generative folds", unit="fold")]
     held_plants = [p for d in done for p in d["plants"]]
     fc = [p["forecast"] for p in held_plants if p["forecast"] is not None]
     ofc = [p["organ_forecast"] for p in held_plants if p["organ_forecast"] is not None]
     gens = {name: {m: summary(r[m] for d in done for r in d["per_draw"][name]) for m in PER_DRAW}
             for name in ALL_GENERATORS}
     return {
-        "plants": len(plants), "folds": [{k: v for k, v in d.items() if k != "per_draw"} | {
+        "plants": n, "split": "held-out folder" if heldout is not None else f"{len(folds)} fold(s)",
+        "folds": [{k: v for k, v in d.items() if k != "per_draw"} | {
             "generators": {name: {m: summary(r[m] for r in d["per_draw"][name])["mean"] for m in PER_DRAW}
                            for name in ALL_GENERATORS}} for d in done],
         "generators": gens,
@@ -521,7 +532,12 @@ def _kind(plants: list[Plant4D], settings: EvalSettings, offset: int, progress: 
                     for name in ("organs", "model", "paper_scalar")},
         "sanity": {m: max(d["sanity"][m] for d in done) if m != "cov" else min(d["sanity"][m] for d in done)
                    for m in METRICS},
-        "morphometrics": {name: {m: summary(d["morphometrics"][name][m] for d in done) for m in MORPHO_KEYS}
+        "morphometrics": {name: {**{m: summary(r[m] for d in done for r in d["morphometrics"][name])
+                                    for m in MORPHO_KEYS},
+                                 "worst_by_age": {u: summary(r["worst_by_age"][u] for d in done
+                                                             for r in d["morphometrics"][name])
+                                                  for u in MORPHO_AGES},
+                                 "draws": sum(len(d["morphometrics"][name]) for d in done)}
                           for name in MORPHO_GENERATORS},
         "held_out_pairs": summary(x for d in done for x in d["held_out_pairs"]),
         "reconstruction": {
@@ -550,18 +566,30 @@ def _kind(plants: list[Plant4D], settings: EvalSettings, offset: int, progress: 
     }
 
 
-def run(datas: dict[str, EvalData], settings: EvalSettings, progress: bool = False, executor: Executor | None = None
-        ) -> dict[str, Any]:
+def run(datas: dict[str, EvalData], settings: EvalSettings, progress: bool = False, executor: Executor | None = None,
+        heldout: EvalData | None = None) -> dict[str, Any]:
     """The section (module doc): ``{"generative": {...}, "timings": {...}}``; ``executor``: where the fits'
-    registrations, the encodings and the ground distances run (the same numbers as inline)."""
+    registrations, the encodings and the ground distances run (the same numbers as inline). ``settings``: an
+    :class:`EvalSettings` or a :class:`GenerativeSettings` (split, draws); ``heldout``: the held-out plants (else
+    read from ``settings.heldout`` when set, else folds)."""
+    settings = GenerativeSettings.of(settings)
+    if heldout is None and settings.heldout is not None:
+        heldout = load_heldout(settings.heldout, settings.T)
     source = primary_source(datas)
     out: dict[str, Any] = {"source": source, "skipped_sources": [s for s in datas if s != source],
                            "generators": dict(GENERATOR_WHAT), "kinds": {}}
     if source is None:
         return {"generative": out, "timings": {}}
     data = datas[source]
+    held = heldout_by_kind(data, heldout) if heldout is not None else None
+    if heldout is not None:
+        out["heldout"] = {"path": str(heldout.root), "source": heldout.source, "plants": len(heldout.plants)}
     for j, kind in enumerate(data.kinds):
-        out["kinds"][kind] = _kind(data.by_kind(kind), settings, 10 * j, progress, executor)
+        if held is not None and kind not in held:
+            out["kinds"][kind] = {"plants": len(data.by_kind(kind)), "skipped": "no held-out plants of this kind"}
+            continue
+        out["kinds"][kind] = _kind(data.by_kind(kind), settings, 10 * j, progress, executor,
+                                   None if held is None else held[kind])
     folds = [f for r in out["kinds"].values() for f in r.get("folds", [])]
     if not folds:
         return {"generative": out, "timings": {}}

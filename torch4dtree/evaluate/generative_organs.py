@@ -32,10 +32,11 @@ from torch import Tensor
 from ..model import FourDTreeModel, OrganModel
 from ..model.organ_forecast import forecast_organs
 from ..model.organ_table import plant_organs
+from ..temporal.registration import time_warp_trajectory
 from ..temporal.within import register_sequence
 from ..trees.structures import Trees, TreeSequence
 
-__all__ = ["SHRINK_TOL", "event_rates", "organ_events", "organ_forecast", "outside_keys_share"]
+__all__ = ["SHRINK_TOL", "event_rates", "organ_events", "organ_forecast", "organ_forecasts", "outside_keys_share"]
 
 # an organ shrinks between two frames when it loses more than this share of its length (skeleton noise and the
 # registration's splits move lengths by a few per cent)
@@ -164,3 +165,20 @@ def organ_forecast(paper: FourDTreeModel, organs: OrganModel, plant: TreeSequenc
         final[key] = abs(float(whole.frames[j].total_length()[0]) - true_final) / max(true_final, SAME_TIME)
     errs["mean"] = float((mean.to(truth) - truth).norm(dim=-1).mean())
     return {**errs, "final_length": final}
+
+
+def organ_forecasts(paper: FourDTreeModel, organs: OrganModel, plants: Sequence[TreeSequence], encodings: Sequence[Any],
+                    generator: torch.Generator) -> list[dict[str, Any] | None]:
+    """:func:`organ_forecast` of every held-out plant, ``encodings`` their ``paper.population.transform``; the 4D
+    mean baseline at each plant's ages (time since its first frame over the training plants' mean duration)."""
+    out: list[dict[str, Any] | None] = []
+    for seq, e in zip(plants, encodings):
+        half = len(seq) // 2
+        if half < 1:
+            out.append(None)
+            continue
+        u = ((seq.times[half:] - seq.times[0]).to(torch.float64) / float(paper.duration)).clamp(0, 1)
+        mean = paper.population.pca.inverse_features(time_warp_trajectory(paper.mean.trajectory,
+                                                                          u.to(paper.mean.trajectory)))
+        out.append(organ_forecast(paper, organs, seq, e.aligned.features()[half:], mean, generator))
+    return out

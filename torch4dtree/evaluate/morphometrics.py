@@ -34,7 +34,8 @@ from ..io.swc import read_swc_skeleton
 from ..trees.skeleton import trees_to_skeleton
 from ..trees.structures import Trees, TreeSequence
 
-__all__ = ["AGES", "FEATURES", "compare_populations", "curve_from_frames", "folder_curve", "ks_statistic",
+__all__ = ["AGES", "FEATURES", "compare_populations", "curve_from_frames", "file_features", "files_curve",
+           "folder_curve", "ks_statistic",
            "one_nna", "population_curves", "sequence_curve", "skeleton_features", "summary_line", "tree_features"]
 
 FEATURES = ("length", "height", "spread", "tips", "branchpoints")
@@ -101,23 +102,46 @@ def sequence_curve(sequence: TreeSequence) -> np.ndarray:
     return curve_from_frames(feats, sequence.times.tolist())
 
 
+def file_features(path: str | Path) -> np.ndarray | None:
+    """``(F,)`` features of one frame file: an SWC frame as its raw skeleton, a ``.mat`` frame as its tree;
+    ``None`` for an empty frame."""
+    path = Path(path)
+    if path.suffix.lower() == ".swc":
+        sk = read_swc_skeleton(path)
+        return skeleton_features(sk.xyz, sk.parent)
+    tree = read_tree(path)
+    return None if tree is None else tree_features(tree)
+
+
+def files_curve(files: Sequence[str | Path], times: Sequence[float]) -> np.ndarray:
+    """``(A, F)`` curve of a plant's frame files at their times (increasing; empty frames skipped): the files as
+    the yardstick reads them, not the resampled trees.
+
+    Example:
+        >>> files_curve([], [])
+        Traceback (most recent call last):
+        ...
+        ValueError: no non-empty frame
+    """
+    feats, kept = [], []
+    for path, t in zip(files, times):
+        f = file_features(path)
+        if f is not None:
+            feats.append(f)
+            kept.append(float(t))
+    if not feats:
+        raise ValueError("no non-empty frame")
+    return curve_from_frames(np.stack(feats), kept)
+
+
 def folder_curve(folder: str | Path) -> np.ndarray:
     """``(A, F)`` curve of a sequence folder: frames and times as :func:`~torch4dtree.io.dataset.frame_times`
-    finds them; SWC frames as their raw skeletons, ``.mat`` frames as their trees (empty ones skipped)."""
-    feats, times = [], []
-    for path, t in frame_times(Path(folder)):
-        if path.suffix.lower() == ".swc":
-            sk = read_swc_skeleton(path)
-            feats.append(skeleton_features(sk.xyz, sk.parent))
-        else:
-            tree = read_tree(path)
-            if tree is None:
-                continue
-            feats.append(tree_features(tree))
-        times.append(t)
-    if not feats:
-        raise ValueError(f"{folder}: no non-empty frame")
-    return curve_from_frames(np.stack(feats), times)
+    finds them, read by :func:`files_curve`."""
+    pairs = frame_times(Path(folder))
+    try:
+        return files_curve([p for p, _ in pairs], [t for _, t in pairs])
+    except ValueError:
+        raise ValueError(f"{folder}: no non-empty frame") from None
 
 
 def population_curves(plants: str | Path | Iterable[TreeSequence]) -> np.ndarray:
@@ -180,17 +204,19 @@ def compare_populations(real: np.ndarray, samples: np.ndarray) -> dict[str, Any]
     """Compare curves ``real (R, A, F)`` and ``samples (S, A, F)`` (module doc).
 
     Returns ``{"real_plants", "samples", "features": {"<feature>@<u>": {"real_median", "sample_median", "ratio",
-    "ks"}}, "one_nna", "worst_ratio", "worst", "ks_max"}``: ``worst_ratio`` is ``min(ratio, 1 / ratio)`` at the
-    worst feature and age ``u > 0`` (named in ``worst``), ``ks_max`` the largest KS at ``u > 0``.
+    "ks"}}, "one_nna", "worst_ratio", "worst", "worst_by_age", "ks_max"}``: ``worst_ratio`` is ``min(ratio, 1 /
+    ratio)`` at the worst feature and age ``u > 0`` (named in ``worst``), ``worst_by_age`` the same at each age
+    ``u > 0`` (keys ``"<u>"``), ``ks_max`` the largest KS at ``u > 0``.
 
     Example:
         >>> x = np.arange(24.0).reshape(4, 2, 3)[:, :1].repeat(5, 1)[..., [0, 1, 2, 0, 1]]
         >>> r = compare_populations(x, 2 * x)
-        >>> r["features"]["length@1.0"]["ratio"], r["ks_max"] > 0
-        (2.0, True)
+        >>> r["features"]["length@1.0"]["ratio"], r["ks_max"] > 0, r["worst_by_age"]["0.5"]
+        (2.0, True, 0.5)
     """
     out: dict[str, Any] = {"real_plants": len(real), "samples": len(samples), "features": {}}
     worst, worst_name, ks_max = 1.0, "", 0.0
+    by_age = {f"{u}": 1.0 for u in AGES if u > 0}
     for j, f in enumerate(FEATURES):
         for i, u in enumerate(AGES):
             mr, ms, ratio = _median_ratio(real[:, i, j], samples[:, i, j])
@@ -198,6 +224,7 @@ def compare_populations(real: np.ndarray, samples: np.ndarray) -> dict[str, Any]
             out["features"][f"{f}@{u}"] = {"real_median": mr, "sample_median": ms, "ratio": ratio, "ks": ks}
             if u > 0:
                 score = min(ratio, 1 / ratio) if ratio > 0 else 0.0
+                by_age[f"{u}"] = min(by_age[f"{u}"], score)
                 if score < worst:
                     worst, worst_name = score, f"{f}@{u}: {ratio:.2f}"
                 ks_max = max(ks_max, ks)
@@ -207,7 +234,7 @@ def compare_populations(real: np.ndarray, samples: np.ndarray) -> dict[str, Any]
 
     mu, sd = vectors(real).mean(0), vectors(real).std(0) + STD_FLOOR
     out["one_nna"] = one_nna((vectors(samples) - mu) / sd, (vectors(real) - mu) / sd)
-    out.update(worst_ratio=worst, worst=worst_name, ks_max=ks_max)
+    out.update(worst_ratio=worst, worst=worst_name, worst_by_age=by_age, ks_max=ks_max)
     return out
 
 
