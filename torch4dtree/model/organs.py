@@ -346,12 +346,23 @@ class OrganModel(nn.Module):
         present wherever one of its children is (:func:`carry_parents`)."""
         b, k = torch.nonzero(chosen >= 0, as_tuple=True)  # plant-major, keys in order: parents first
         r = chosen[b, k]
-        sizes = torch.zeros(*chosen.shape, len(self.ages), dtype=torch.float64)
-        sizes[b, k] = length[b, k, None] * self.growth[r]
         keys, key_parent = self.sample_keys()
-        sizes = carry_parents(sizes, key_parent, [len(key) for key in keys])
+        used = torch.unique(k)  # the keys these plants reach and their ancestors: a few of sample_keys' many
+        while True:
+            up = key_parent[used]
+            wider = torch.unique(torch.cat([used, up[up >= 0]]))
+            if len(wider) == len(used):
+                break
+            used = wider
+        local = torch.full((len(keys),), -1, dtype=torch.long)
+        local[used] = torch.arange(len(used))
+        up = key_parent[used]
+        sizes = torch.zeros(chosen.shape[0], len(used), len(self.ages), dtype=torch.float64)
+        sizes[b, local[k]] = length[b, k, None] * self.growth[r]
+        sizes = carry_parents(sizes, torch.where(up >= 0, local[up.clamp(min=0)], -1),
+                              [len(keys[i]) for i in used.tolist()])
         shapes = rotate_about_up(self.shape[r], turn[b, k][:, None, None])
-        return assemble_batch(b, k, key_parent, sizes[b, k], shapes, s_of[b, k], times, names)
+        return assemble_batch(b, k, key_parent, sizes[b, local[k]], shapes, s_of[b, k], times, names)
 
 
 def pick_donors(weights: Tensor, u: Tensor) -> Tensor:
@@ -383,13 +394,15 @@ def carry_parents(sizes: Tensor, key_parent: Tensor, depth: Sequence[int]) -> Te
     out = sizes.clone()
     for d in range(max(depth, default=0), 0, -1):  # deepest first: a carried child carries its parent
         children = torch.nonzero(depth_t == d).reshape(-1)
-        need = torch.zeros_like(out).index_add_(1, key_parent[children], (out[:, children] > 0).to(out.dtype)) > 0
-        fill = need & (out <= 0)
+        parents, slot = torch.unique(key_parent[children], return_inverse=True)  # only these columns can change
+        here = out[:, parents]
+        need = torch.zeros_like(here).index_add_(1, slot, (out[:, children] > 0).to(out.dtype)) > 0
+        fill = need & (here <= 0)
         if bool(fill.any()):
-            held = torch.cummax(out, 2).values  # the last size after it was last seen (0 before it appears)
-            first = torch.where(out > 0, out, torch.inf).min(2, keepdim=True).values  # its first (smallest) size
+            held = torch.cummax(here, 2).values  # the last size after it was last seen (0 before it appears)
+            first = torch.where(here > 0, here, torch.inf).min(2, keepdim=True).values  # its first (smallest) size
             first = torch.where(torch.isfinite(first), first, 0.0)  # never there at all: stays out
-            out = torch.where(fill, torch.where(held > 0, held, first), out)
+            out[:, parents] = torch.where(fill, torch.where(held > 0, held, first), here)
     return out
 
 
