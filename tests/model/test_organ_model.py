@@ -69,6 +69,20 @@ def test_samples_are_valid_trees(model: OrganModel) -> None:
         assert len(p) == len(model.ages)
 
 
+def test_sample_keys_stay_bounded(population: tuple[list[TreeSequence], list[TreeSequence]],
+                                  monkeypatch: pytest.MonkeyPatch) -> None:
+    """Deep hierarchies would open keys exponentially in their depth: the bound holds and the samples stay valid."""
+    full = len(OrganModel().fit(population[0]).sample_keys()[0])
+    bound = len(OrganModel().fit(population[0]).keys) + 3
+    assert full > bound  # the bound bites
+    monkeypatch.setattr(organs, "MAX_SAMPLE_KEYS", bound)
+    model = OrganModel().fit(population[0])
+    assert len(model.sample_keys()[0]) == bound
+    for p in model.sample(6, generator=torch.Generator().manual_seed(2)):
+        assert sequence_validity(p) == []
+        assert int(p.frames.label.max()) < bound
+
+
 def test_seeds_reproduce_and_checkpoint_round_trips(model: OrganModel, tmp_path: Path) -> None:
     a = model.sample(3, generator=torch.Generator().manual_seed(5))
     b = model.sample(3, generator=torch.Generator().manual_seed(5))

@@ -48,6 +48,10 @@ LATENT = 3
 MIN_LENGTH = 1e-3
 # plants grown together by OrganModel.decode (bounds the memory of a chunk's organ curves)
 DECODE_CHUNK = 64
+# most botanical keys a sample can take (OrganModel.sample_keys): deep hierarchies with many children per organ would
+# otherwise open keys exponentially in their depth (five Pheno4D tomatoes: not done in 5 min); keys open parents
+# first, so the last ranks of the deepest organs are the ones left out
+MAX_SAMPLE_KEYS = 50_000
 
 
 class OrganModelError(ValueError):
@@ -247,7 +251,8 @@ class OrganModel(nn.Module):
         """The botanical keys a sample's organs can take and each one's parent key ``(K',)``: the training keys
         (:attr:`keys`, in order) then, parents first, every further ``k``-th child of a key up to the most children
         an organ at that depth has in the training plants (a sample reads a parent's children along a training
-        organ that may sit at another rank). A sample's ``label`` indexes this list."""
+        organ that may sit at another rank), at most :data:`MAX_SAMPLE_KEYS` in all. A sample's ``label`` indexes
+        this list."""
         self.check_fitted()
         if self._reach is None:
             links = self.links()
@@ -264,6 +269,8 @@ class OrganModel(nn.Module):
             while j < len(keys):  # parents first: a key's children are appended after it
                 key = keys[j]
                 for r in range(int(most[len(key)])):
+                    if len(keys) >= MAX_SAMPLE_KEYS:
+                        break
                     child = key + (r,)
                     if child not in index:
                         index[child] = len(keys)
