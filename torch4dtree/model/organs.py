@@ -331,10 +331,13 @@ class OrganModel(nn.Module):
                 continue
             here = az[source] + turn[k]
             standing = links.equivalent[source]  # (P,)
-            near = np.where((standing >= 0) & (links.n_kids[standing] > 0), w, 0.0)  # stand-ins with children
-            cdf = np.cumsum(near)
+            # before the first child any stand-in (a childless one gives none, as often as the stand-ins do);
+            # later only stand-ins with children, so a switch does not end the children early
+            start = np.cumsum(np.where(standing >= 0, w, 0.0))
+            later = np.cumsum(np.where((standing >= 0) & (links.n_kids[standing] > 0), w, 0.0))
             cur, i, last = source, 0, -1
             for c in children[k]:
+                cdf = start if last < 0 else later
                 if u[3 + c] >= persistence and cdf[-1] > 0 and (last < 0 or links.landmark[last]):
                     q = min(int(np.searchsorted(cdf, u[3 + K + c] * cdf[-1], side="right")), len(w) - 1)
                     if int(standing[q]) != cur:
