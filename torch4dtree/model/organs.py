@@ -111,6 +111,7 @@ class OrganModel(nn.Module):
         self.report_: dict[str, Any] = {}
         self._links: OrganLinks | None = None
         self._reach: tuple[list[tuple[int, ...]], Tensor] | None = None
+        self._plan: tuple[list[list[int]], np.ndarray, np.ndarray, np.ndarray] | None = None
 
     # ------------------------------------------------------------------------ state
     def get_extra_state(self) -> dict[str, Any]:
@@ -127,7 +128,7 @@ class OrganModel(nn.Module):
         for name in list(self._buffers):
             if name in state_dict:
                 self._buffers[name] = torch.empty_like(state_dict[name])
-        self._links = self._reach = None
+        self._links = self._reach = self._plan = None
         return super().load_state_dict(state_dict, strict, assign)
 
     def save(self, path: str | Path, config: dict[str, Any] | None = None, overwrite: bool = False) -> str:
@@ -171,7 +172,7 @@ class OrganModel(nn.Module):
         self.shape, self.growth, self.s = table.shape, table.growth, table.s
         self.azimuth, self.parent_azimuth = table.azimuth, table.parent_azimuth
         self.summary, self.ages = summary, table.ages
-        self._links = self._reach = None
+        self._links = self._reach = self._plan = None
         starts = torch.tensor([float(s.times[0]) for s in sequences], dtype=torch.float64)
         spans = torch.tensor([float(s.times[-1] - s.times[0]) for s in sequences], dtype=torch.float64)
         self.time_start, self.duration = starts.mean(), spans.mean().clamp_min(1e-12)
@@ -303,13 +304,15 @@ class OrganModel(nn.Module):
 
     def _walk_plan(self) -> tuple[list[list[int]], np.ndarray, np.ndarray, np.ndarray]:
         """Per key (:meth:`sample_keys`) its children keys in rank order; the records, azimuths and parent
-        azimuths as arrays."""
-        keys, key_parent = self.sample_keys()
-        children: list[list[int]] = [[] for _ in keys]
-        for k, p in enumerate(key_parent.tolist()):
-            if p >= 0:
-                children[p].append(k)  # siblings in rank order
-        return children, self.record.numpy(), self.azimuth.numpy(), self.parent_azimuth.numpy()
+        azimuths as arrays (built once: every chunk of :meth:`decode` walks the same plan)."""
+        if self._plan is None:
+            keys, key_parent = self.sample_keys()
+            children: list[list[int]] = [[] for _ in keys]
+            for k, p in enumerate(key_parent.tolist()):
+                if p >= 0:
+                    children[p].append(k)  # siblings in rank order
+            self._plan = children, self.record.numpy(), self.azimuth.numpy(), self.parent_azimuth.numpy()
+        return self._plan
 
     def _walk(self, u: np.ndarray, w: np.ndarray, links: OrganLinks,
               plan: tuple[list[list[int]], np.ndarray, np.ndarray, np.ndarray], chosen: np.ndarray,
