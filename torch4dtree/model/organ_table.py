@@ -25,13 +25,17 @@ from torch import Tensor
 from ..settings import RegistrationSettings
 from ..trees.structures import Trees, TreeSequence
 
-__all__ = ["OrganLinks", "OrganTable", "azimuth", "organ_links", "organ_table", "plant_organs"]
+__all__ = ["OrganLinks", "OrganTable", "azimuth", "organ_links", "organ_table", "plant_organs", "rooted_frames"]
 
 # the vertical axis (the plants' "up"; the azimuth of an organ is its direction about it)
 UP = 2
 # an organ first seen in a frame emerged at an unknown time since the frame before: the k-th organ of a plant at the
 # share frac(k x this) of that interval (the golden ratio's conjugate spreads the shares evenly over [0, 1))
 EMERGENCE_STEP = (math.sqrt(5.0) - 1.0) / 2.0
+# a main branch rises from its root: a frame whose main branch's chord climbs less than this share of its length
+# (about 20 degrees above the horizontal) is rooted off the stem, at a drooping leaf tip that hangs below the stem base
+# (a skeleton's root is its lowest node), so its hierarchy names other organs than the plant's other frames
+MIN_RISE = 0.35
 
 
 @dataclass
@@ -81,9 +85,27 @@ def azimuth(curves: Tensor) -> Tensor:
     return torch.atan2(chord[..., horizontal[1]], chord[..., horizontal[0]])
 
 
+def rooted_frames(seq: TreeSequence) -> list[int]:
+    """The frames of a 4D tree whose main branch rises from its root (:data:`MIN_RISE`): all of them, unless fewer
+    than two would be left.
+
+    Example:
+        >>> from torch4dtree.data.synthetic import synthetic_plant
+        >>> rooted_frames(synthetic_plant(kind="tomato", seed=0, n_frames=3, T=8).sequence)
+        [0, 1, 2]
+    """
+    frames = seq.frames
+    main = frames.points[frames.ptr[:-1]]  # (n, T, d) each frame's main branch
+    chord = main[:, -1] - main[:, 0]
+    rise = chord[:, UP] / chord.norm(dim=-1).clamp_min(torch.finfo(chord.dtype).tiny)
+    keep = torch.nonzero(rise >= MIN_RISE).reshape(-1).tolist()
+    return keep if len(keep) >= min(2, len(seq)) else list(range(len(seq)))
+
+
 def plant_organs(seq: TreeSequence, ages: Tensor, registration: RegistrationSettings | None = None
                  ) -> list[dict[str, object]]:
-    """The organs of one 4D tree, keyed by botanical position (module doc).
+    """The organs of one 4D tree, keyed by botanical position (module doc). Frames rooted off the stem
+    (:func:`rooted_frames`) are left out, as if not scanned: every organ of theirs would sit under another parent.
 
     Args:
         seq: the 4D tree (``n`` frames).
@@ -97,6 +119,10 @@ def plant_organs(seq: TreeSequence, ages: Tensor, registration: RegistrationSett
     """
     from ..temporal.within import register_sequence
 
+    u = seq.normalized_times().to(torch.float64)
+    kept = rooted_frames(seq)
+    if len(kept) < len(seq):
+        seq, u = seq[kept], u[kept]
     frames = seq.frames.to(torch.float64)
     n = len(seq)
     if n >= 2:
