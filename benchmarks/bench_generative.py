@@ -2,7 +2,7 @@
 
 usage: python benchmarks/bench_generative.py TRAIN_DIR HELDOUT_DIR OUT_DIR [--n N] [--seed 0] [--seeds 1] [--paper]
                                              [--label KIND] [--yardstick morpho_eval.py]
-                                             [--against-training] [--events] [--json FILE]
+                                             [--against-training] [--events] [--json FILE] [--splits K]
        python benchmarks/bench_generative.py --speed OUT_DIR [--plants 100] [--frames 10] [--kind tomato]
                                              [--seed 11] [--samples 1000] [--T 32]
 
@@ -27,6 +27,14 @@ samples of this population are from each other. With ``--events``,
 organs shrinking / vanishing between frames (:func:`torch4dtree.evaluate.generative_organs.event_rates`) in the
 first seed's samples (as many as training plants) beside the training and held-out plants. The first seed's
 samples are the ones written to OUT_DIR (so ``--yardstick`` checks them); ``--json FILE`` keeps every seed's numbers.
+
+Over random splits (``--splits K`` with ``--seeds``): one fixed split can be unlike the population (its training
+plants far from its held-out ones at some age, so that no model copying them passes there). The training and
+held-out plants are pooled and split at random K times into sets of the original sizes (split ``i`` is the
+permutation of seed ``i``, the same as the ``random splits`` row's seed ``i``); on each split the organ model is fit
+on its training plants and judged over the seeds against its held-out plants, and its training plants are judged
+against the same held-out plants (the real-vs-real row, the same splits). Printed: the median over splits (worst
+split) of each seed-median, and each split's worst median ratio and 1-NNA.
 
 Speed (``--speed``): writes ``--plants`` synthetic plants of ``--frames`` frames with the package
 (``torch4dtree synth``) into OUT_DIR/data (kept for a rerun), then times reading them, fitting the organ model and
@@ -55,7 +63,7 @@ from torch4dtree.evaluate.generative_organs import event_rates
 from torch4dtree.evaluate.morphometrics import AGES, FEATURES, compare_populations, population_curves
 from torch4dtree.evaluate.stats import summary
 from torch4dtree.io import read_dataset, write_sequence
-from torch4dtree.io.dataset import LoadOptions
+from torch4dtree.io.dataset import LoadOptions, sequence_folders
 from torch4dtree.model.fourd import FourDTreeModel, sequence_validity
 from torch4dtree.model.organs import OrganModel
 from torch4dtree.trees.structures import TreeSequence
@@ -172,6 +180,47 @@ def morphometric_table(heldout: Path, folders: dict[str, Path], label: str) -> l
     return lines + [""] + ratios
 
 
+def split_protocol(train_dir: Path, heldout_dir: Path, T: int, seeds: list[int], splits: int) -> dict:
+    """The protocol over ``splits`` random splits of the pooled plants (module doc): ``{"splits": [{"train": names,
+    "organs model": {key: summary over seeds}, "training plants": {key: value}}], "summary": {row: {key: summary
+    over splits of the seed-medians}}}``."""
+    plants = [s.sequence for d in (train_dir, heldout_dir) for s in read_dataset(d, LoadOptions(T=T))]
+    curves = np.concatenate([population_curves(train_dir), population_curves(heldout_dir)])
+    k = len(sequence_folders(train_dir))
+    rows = []
+    for i in range(splits):
+        p = torch.randperm(len(plants), generator=torch.Generator().manual_seed(i)).numpy()
+        train, held = p[:k], p[k:]
+        model = OrganModel().fit([plants[j] for j in train])
+        per_seed = [_per_seed(curves[held], population_curves(draw(model, len(held), s))) for s in seeds]
+        real = _per_seed(curves[held], curves[train])
+        rows.append({"train": [plants[j].name for j in train],
+                     "organs model": {key: summary(r[key] for r in per_seed) for key in SEED_KEYS},
+                     "organs model worst": [r["worst"] for r in per_seed],
+                     "training plants": {key: real[key] for key in SEED_KEYS}, "training plants worst": real["worst"]})
+    out = {"organs model": {key: summary(r["organs model"][key]["median"] for r in rows) for key in SEED_KEYS},
+           "training plants": {key: summary(r["training plants"][key] for r in rows) for key in SEED_KEYS}}
+    return {"splits": rows, "summary": out}
+
+
+def split_table(result: dict, label: str) -> list[str]:
+    """Markdown: median over splits (worst split) of each row's seed-median, then one line per split."""
+    ages = [f"{u}" for u in AGES if u > 0]
+    n = len(result["splits"])
+    lines = [f"| {label} over {n} random splits | " + " | ".join(f"worst ratio @ {u}" for u in ages)
+             + " | worst ratio | 1-NNA |", "|---|" + "---|" * (len(ages) + 2)]
+    for name, sm in result["summary"].items():
+        lines.append(f"| {name} | " + " | ".join(median_worst(sm[u], "min") for u in ages)
+                     + f" | {median_worst(sm['worst_ratio'], 'min')} | {median_worst(sm['one_nna'], 'max')} |")
+    lines += ["", "| split | organs model: worst ratio, 1-NNA (seed-medians) | training plants: worst ratio, 1-NNA |",
+              "|---|---|---|"]
+    for i, r in enumerate(result["splits"]):
+        m, t = r["organs model"], r["training plants"]
+        lines.append(f"| {i} | {m['worst_ratio']['median']:.2f}, {m['one_nna']['median']:.2f} | "
+                     f"{t['worst_ratio']:.2f} ({r['training plants worst']}), {t['one_nna']:.2f} |")
+    return lines
+
+
 def peak_gb() -> float:
     """The process's peak resident memory (GB; Linux reports kB)."""
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6
@@ -211,6 +260,8 @@ def main() -> None:
     ap.add_argument("folders", nargs="+", help="TRAIN_DIR HELDOUT_DIR OUT_DIR, or OUT_DIR with --speed")
     ap.add_argument("--n", type=int, default=None, help="samples a model draws (default: as many as held-out plants)")
     ap.add_argument("--seeds", type=int, default=1, help="the plausibility protocol over this many seeds (module doc)")
+    ap.add_argument("--splits", type=int, default=0,
+                    help="with --seeds: also the protocol over this many random splits of the pooled plants")
     ap.add_argument("--events", action="store_true", help="organs shrinking / vanishing: samples beside real plants")
     ap.add_argument("--json", default=None, help="write the protocol's numbers here")
     ap.add_argument("--seed", type=int, default=None, help="samples' seed (0), or the speed data's seed (11)")
@@ -259,6 +310,10 @@ def main() -> None:
         print("\n".join(seed_table(protocol, a.label, n, len(held))))
         record["seeds"] = seeds
         record["protocol"] = protocol
+        if a.splits > 0:
+            by_split = split_protocol(train_dir, heldout, a.T, seeds, a.splits)
+            print("\n".join(split_table(by_split, a.label)))
+            record["splits"] = by_split
     if a.events:
         k = len(train)
         ev = {f"{name} model": event_rates(draw(m, k, seed)) for name, m in models.items()}
