@@ -222,7 +222,7 @@ def test_organ_model_rows_exist_and_are_finite(report: dict) -> None:
         assert 0.0 <= e["shrink"] <= 1.0 and 0.0 <= e["vanish"] <= 1.0 and e["organ_steps"] > 0, who
     f = r["organ_forecast"]
     assert f["plants"] == 2 and 0 <= f["wins_vs_both"] <= min(f["wins_vs_last"], f["wins_vs_mean"])
-    for key in ("organs", "last", "mean"):
+    for key in ("organs", "organs_draw", "last", "mean"):
         assert math.isfinite(f[key]["mean"]) and f[key]["min"] >= 0, key
 
 

@@ -43,8 +43,9 @@ spans what the tree PCA misses of all these frames. Its pool is ``max(h, MORPHO_
 draw ``h`` of them without replacement; its novelty is measured against the encoded training plants. Beside it:
 the share of held-out squared SRVF norm at botanical keys no training plant had (``outside_keys_share``), organs
 shrinking / vanishing between frames (its samples, the paper model's, training and held-out plants) and its
-forecast of the second half (:func:`~torch4dtree.model.organ_forecast.forecast_organs`) against "the last observed
-frame stays" and the 4D mean.
+forecast of the second half (:func:`~torch4dtree.model.organ_forecast.forecast_organs`; its point the mean of
+``FORECAST_DRAWS`` continuations in the layout, one continuation's error beside it) against "the last observed frame
+stays" and the 4D mean.
 
 **Generators** (each draw: as many samples as held-out plants, the usual equal-size protocol; ``DRAWS = 50`` draws
 per fold, 4 when ``quick``; metrics per draw, summarised over all draws of all folds):
@@ -480,11 +481,12 @@ def _kind(plants: list[Plant4D], settings: EvalSettings, offset: int, progress: 
                      "tree_pca": {k: summary(f["tree_pca"][k] for f in fc) for k in ("model", "last", "mean")},
                      "plants": len(fc), "wins_vs_last": sum(f["model"] < f["last"] for f in fc),
                      "wins_vs_mean": sum(f["model"] < f["mean"] for f in fc)},
-        "organ_forecast": {**{k: summary(f[k] for f in ofc) for k in ("organs", "last", "mean")},
+        "organ_forecast": {**{k: summary(f[k] for f in ofc) for k in ("organs", "organs_draw", "last", "mean")},
                            "final_length": {k: summary(f["final_length"][k] for f in ofc) for k in ("organs", "last")},
                            "plants": len(ofc), "wins_vs_last": sum(f["organs"] < f["last"] for f in ofc),
                            "wins_vs_mean": sum(f["organs"] < f["mean"] for f in ofc),
-                           "wins_vs_both": sum(f["organs"] < min(f["last"], f["mean"]) for f in ofc)},
+                           "wins_vs_both": sum(f["organs"] < min(f["last"], f["mean"]) for f in ofc),
+                           "draw_wins_vs_both": sum(f["organs_draw"] < min(f["last"], f["mean"]) for f in ofc)},
     }
 
 
