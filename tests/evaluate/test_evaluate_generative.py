@@ -145,6 +145,15 @@ def test_ground_metric_is_symmetric_and_the_better_direction() -> None:
     assert torch.allclose(metrics.distance_matrix(a, b).diagonal(), d)
 
 
+def test_ground_metric_does_not_depend_on_the_pairs_per_call(monkeypatch: pytest.MonkeyPatch) -> None:
+    g = torch.Generator().manual_seed(1)
+    a, b = (torch.randn(7, 8, 4, generator=g, dtype=torch.float64) for _ in range(2))
+    whole = metrics.distance4d(a, b)
+    monkeypatch.setattr(metrics, "PAIR_VALUES", 2 * 4 * 4 * 3)  # 3 pairs a call
+    assert metrics.pairs_per_call(4) == 3
+    assert torch.equal(metrics.distance4d(a, b), whole)
+
+
 # ----------------------------------------------------------------------------- the section on a tiny dataset
 
 

@@ -27,10 +27,25 @@ from torch import Tensor
 from ..parallel import pair_matrix
 from ..temporal.registration import register_trajectories
 
-__all__ = ["CHUNK", "NOVELTY_DIVISOR", "distance4d", "distance_matrix", "novelty", "set_metrics", "within_draw"]
+__all__ = ["CHUNK", "NOVELTY_DIVISOR", "PAIR_VALUES", "distance4d", "distance_matrix", "novelty", "pairs_per_call",
+           "set_metrics", "within_draw"]
 
-CHUNK = 2048  # pairs per registration call (memory)
+CHUNK = 2048  # pairs per task of distance_matrix, and per registration call at most
+# a registration call keeps a (k, k) rotation per registered pair (both directions): calls hold at most this many
+# of those values (128 MB), whatever the coordinates' dimension k (the layout's extension can reach hundreds)
+PAIR_VALUES = 1 << 24
 NOVELTY_DIVISOR = 4.0
+
+
+def pairs_per_call(k: int) -> int:
+    """Pairs of trajectories in ``k`` coordinates registered per call: :data:`CHUNK`, fewer when their rotation
+    buffers would exceed :data:`PAIR_VALUES` (memory; the distances do not depend on it).
+
+    Example:
+        >>> pairs_per_call(3), pairs_per_call(500)
+        (2048, 33)
+    """
+    return max(1, min(CHUNK, PAIR_VALUES // (2 * k * k)))
 
 
 def distance4d(a: Tensor, b: Tensor) -> Tensor:
@@ -45,8 +60,9 @@ def distance4d(a: Tensor, b: Tensor) -> Tensor:
     if a.shape != b.shape:
         raise ValueError(f"trajectories must have one shape, got {tuple(a.shape)} and {tuple(b.shape)}")
     out = []
-    for i in range(0, a.shape[0], CHUNK):
-        x, y = a[i:i + CHUNK].detach(), b[i:i + CHUNK].detach()
+    step = pairs_per_call(a.shape[-1])
+    for i in range(0, a.shape[0], step):
+        x, y = a[i:i + step].detach(), b[i:i + step].detach()
         d = register_trajectories(torch.cat([x, y]), torch.cat([y, x])).distance  # both directions in one batch
         out.append(torch.minimum(d[:len(x)], d[len(x):]))
     return torch.cat(out) if out else a.new_zeros(0)
