@@ -15,7 +15,9 @@ import torch
 from torch4dtree.data.synthetic import synthetic_plant
 from torch4dtree.evaluate import EvalData, EvalSettings, Plant4D, dumps, load_eval_data
 from torch4dtree.evaluate import generative as gen
+from torch4dtree.evaluate import generative_metrics as metrics
 from torch4dtree.evaluate import generative_split as split
+from torch4dtree.evaluate.data import MAX_FOLDS, MORPHO_DRAWS, QUICK_MORPHO_DRAWS
 from torch4dtree.evaluate.generative_organs import event_rates, organ_events
 from torch4dtree.evaluate.morphometrics import compare_populations, population_curves
 from torch4dtree.model.organs import OrganModel
@@ -29,7 +31,7 @@ def _line(points: list[float]) -> torch.Tensor:
 def _metrics(samples: list[float], refs: list[float]) -> dict[str, float]:
     """set_metrics of points on a line (distance |x - y|)."""
     s, r = _line(samples), _line(refs)
-    return gen.set_metrics((s[:, None] - s).abs(), (s[:, None] - r).abs(), (r[:, None] - r).abs())
+    return metrics.set_metrics((s[:, None] - s).abs(), (s[:, None] - r).abs(), (r[:, None] - r).abs())
 
 
 # ----------------------------------------------------------------------------- metrics on constructed cases
@@ -66,18 +68,18 @@ def test_metrics_by_hand() -> None:
 def test_novelty_threshold() -> None:
     t = _line([0.0, 4.0, 10.0])  # training nearest neighbours 4, 4, 6: median 4, threshold 1
     s = _line([0.5, 7.0, 12.0])
-    n = gen.novelty((s[:, None] - t).abs(), (t[:, None] - t).abs())
+    n = metrics.novelty((s[:, None] - t).abs(), (t[:, None] - t).abs())
     assert n["threshold"] == 1.0 and n["share_closer"] == pytest.approx(1 / 3) and n["nearest_min"] == 0.5
 
 
 def test_folds_cover_every_plant_once() -> None:
     for n in (4, 5, 7, 20):
-        folds = gen.folds_of(n, torch.Generator().manual_seed(3))
+        folds = split.folds_of(n, torch.Generator().manual_seed(3))
         assert sorted(i for f in folds for i in f) == list(range(n))
         assert all(len(f) >= 2 and n - len(f) >= 2 for f in folds)
-        assert len(folds) == min(n // 2, split.MAX_FOLDS)
-        assert folds == gen.folds_of(n, torch.Generator().manual_seed(3))
-    assert gen.folds_of(3, torch.Generator()) == []
+        assert len(folds) == min(n // 2, MAX_FOLDS)
+        assert folds == split.folds_of(n, torch.Generator().manual_seed(3))
+    assert split.folds_of(3, torch.Generator()) == []
 
 
 def _plants(n: int, prefix: str = "p") -> list[Plant4D]:
@@ -87,21 +89,24 @@ def _plants(n: int, prefix: str = "p") -> list[Plant4D]:
 
 def test_splits_fit_on_half_or_on_a_given_folder() -> None:
     plants = _plants(40)
-    halves = split.splits(plants, split.GenerativeSettings(folds=2), torch.Generator().manual_seed(0))
+    halves = split.splits(plants, EvalSettings(folds=2), torch.Generator().manual_seed(0))
     assert [(len(t), len(h)) for t, h in halves] == [(20, 20), (20, 20)]
     assert {p.name for p in halves[0][1]} == {p.name for p in halves[1][0]}  # each half held out once
-    quick = split.splits(plants, split.GenerativeSettings(quick=True), torch.Generator().manual_seed(0))
+    quick = split.splits(plants, EvalSettings(quick=True), torch.Generator().manual_seed(0))
     assert [(len(t), len(h)) for t, h in quick] == [(27, 13)]  # 3 folds, the largest training set
     held = _plants(20, "h")
-    assert split.splits(plants[:20], split.GenerativeSettings(), torch.Generator(), held) == [(plants[:20], held)]
-    assert split.splits(plants[:1], split.GenerativeSettings(), torch.Generator(), held) == []
+    assert split.splits(plants[:20], EvalSettings(), torch.Generator(), held) == [(plants[:20], held)]
+    assert split.splits(plants[:1], EvalSettings(), torch.Generator(), held) == []
     train, other = EvalData(Path("a"), "folder", plants[:20]), EvalData(Path("b"), "synthetic", held)
     assert split.heldout_by_kind(train, other) == {"maize": held}
     with pytest.raises(ValueError, match="also training plants"):
         split.heldout_by_kind(train, EvalData(Path("b"), "folder", plants[5:7]))
     with pytest.raises(ValueError, match="folds"):
-        split.GenerativeSettings(folds=1)
-    assert split.GenerativeSettings.of(EvalSettings(T=16, seed=3)) == split.GenerativeSettings(T=16, seed=3)
+        EvalSettings(folds=1)
+    with pytest.raises(ValueError, match="morpho_draws"):
+        EvalSettings(morpho_draws=0)
+    assert EvalSettings(morpho_draws=7).generative_draws() == 7
+    assert EvalSettings(morpho_draws=7, quick=True).generative_draws() == QUICK_MORPHO_DRAWS
 
 
 def test_cli_split_options(tmp_path: Path) -> None:
@@ -114,9 +119,9 @@ def test_cli_split_options(tmp_path: Path) -> None:
     (tmp_path / "held").mkdir()
     s = settings_from_args(p.parse_args([str(tmp_path / "train"), "--heldout", str(tmp_path / "held"), "--draws", "7",
                                          "--T", "16"]))
-    assert (s.heldout, s.folds, s.morpho_draws, s.T) == (str(tmp_path / "held"), split.MAX_FOLDS, 7, 16)
+    assert (s.heldout, s.folds, s.morpho_draws, s.T) == (str(tmp_path / "held"), MAX_FOLDS, 7, 16)
     s = settings_from_args(p.parse_args([str(tmp_path / "train"), "--folds", "2"]))
-    assert (s.heldout, s.folds, s.morpho_draws) == (None, 2, split.MORPHO_DRAWS)
+    assert (s.heldout, s.folds, s.morpho_draws) == (None, 2, MORPHO_DRAWS)
     with pytest.raises(UsageError):
         settings_from_args(p.parse_args([str(tmp_path / "train"), "--heldout", str(tmp_path / "held"), "--folds", "2"]))
     with pytest.raises(UsageError):
@@ -130,14 +135,23 @@ def test_ground_metric_is_symmetric_and_the_better_direction() -> None:
     t = torch.linspace(0, 1, 16, dtype=torch.float64)[None, :, None]
     a = torch.randn(5, 1, 3, generator=g, dtype=torch.float64) * torch.sin(3 * t) + t
     b = torch.randn(5, 1, 3, generator=g, dtype=torch.float64) * t.square()
-    d = gen.distance4d(a, b)
-    assert torch.allclose(d, gen.distance4d(b, a))
+    d = metrics.distance4d(a, b)
+    assert torch.allclose(d, metrics.distance4d(b, a))
     both = torch.minimum(register_trajectories(a, b).distance, register_trajectories(b, a).distance)
     assert torch.allclose(d, both)
-    assert float(gen.distance4d(a, a).abs().max()) == 0.0 and bool((d > 0).all())
-    m = gen.distance_matrix(a)
+    assert float(metrics.distance4d(a, a).abs().max()) == 0.0 and bool((d > 0).all())
+    m = metrics.distance_matrix(a)
     assert torch.equal(m, m.T) and torch.equal(m.diagonal(), torch.zeros(5, dtype=torch.float64))
-    assert torch.allclose(gen.distance_matrix(a, b).diagonal(), d)
+    assert torch.allclose(metrics.distance_matrix(a, b).diagonal(), d)
+
+
+def test_ground_metric_does_not_depend_on_the_pairs_per_call(monkeypatch: pytest.MonkeyPatch) -> None:
+    g = torch.Generator().manual_seed(1)
+    a, b = (torch.randn(7, 8, 4, generator=g, dtype=torch.float64) for _ in range(2))
+    whole = metrics.distance4d(a, b)
+    monkeypatch.setattr(metrics, "PAIR_VALUES", 2 * 4 * 4 * 3)  # 3 pairs a call
+    assert metrics.pairs_per_call(4) == 3
+    assert torch.equal(metrics.distance4d(a, b), whole)
 
 
 # ----------------------------------------------------------------------------- the section on a tiny dataset
@@ -217,7 +231,7 @@ def test_organ_model_rows_exist_and_are_finite(report: dict) -> None:
         assert 0.0 <= e["shrink"] <= 1.0 and 0.0 <= e["vanish"] <= 1.0 and e["organ_steps"] > 0, who
     f = r["organ_forecast"]
     assert f["plants"] == 2 and 0 <= f["wins_vs_both"] <= min(f["wins_vs_last"], f["wins_vs_mean"])
-    for key in ("organs", "last", "mean"):
+    for key in ("organs", "organs_draw", "last", "mean"):
         assert math.isfinite(f[key]["mean"]) and f[key]["min"] >= 0, key
 
 
@@ -245,7 +259,7 @@ def _copies(samples: list, train: list) -> float:
     t = torch.from_numpy(population_curves(train)).log1p().flatten(1)
     s = torch.from_numpy(population_curves(samples)).log1p().flatten(1)
     scale = t.std(0).clamp_min(1e-9)
-    return gen.novelty(torch.cdist(s / scale, t / scale), torch.cdist(t / scale, t / scale))["share_closer"]
+    return metrics.novelty(torch.cdist(s / scale, t / scale), torch.cdist(t / scale, t / scale))["share_closer"]
 
 
 def test_the_organ_model_passes_where_a_collapsed_and_a_memorising_generator_fail() -> None:

@@ -14,7 +14,7 @@ import pytest
 import torch
 
 from torch4dtree.evaluate import EvalData, generative, load_eval_data
-from torch4dtree.evaluate.generative_split import QUICK_MORPHO_DRAWS, GenerativeSettings
+from torch4dtree.evaluate.data import QUICK_MORPHO_DRAWS, EvalSettings
 from torch4dtree.evaluate.morphometrics import (
     AGES,
     FEATURES,
@@ -142,7 +142,7 @@ def test_the_generative_section_reports_morphometrics(synthetic_folder: Callable
     data = load_eval_data(synthetic_folder(5, 0, 5), "synthetic", T=16)
     train = EvalData(data.root, data.source, data.plants[:3])
     held = EvalData(data.root, data.source, data.plants[3:])
-    out = generative.run({"synthetic": train}, GenerativeSettings(T=16, quick=True), False, heldout=held)["generative"]
+    out = generative.run({"synthetic": train}, EvalSettings(T=16, quick=True), False, heldout=held)["generative"]
     kind = out["kinds"]["tomato"]
     assert kind["split"] == "held-out folder" and len(kind["folds"]) == 1 and kind["plants"] == 5
     assert kind["folds"][0]["held_out"] == [p.name for p in held.plants]

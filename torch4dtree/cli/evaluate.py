@@ -23,7 +23,7 @@ from ..settings import CROSS_LP, CROSS_ORDER_TOL, CROSS_POSITIONS, POSITIONS
 from .options import UsageError, add_executor_arguments, executor_from_args, int_at_least
 
 if TYPE_CHECKING:
-    from ..evaluate.generative_split import GenerativeSettings
+    from ..evaluate import EvalSettings
 
 SECTION_NAMES = ("spatial", "temporal", "generative", "truth", "robustness")
 
@@ -90,9 +90,9 @@ def _prepare_out(out: Path, overwrite: bool) -> None:
     shutil.rmtree(out)
 
 
-def settings_from_args(args: argparse.Namespace, figures: bool = True) -> GenerativeSettings:
+def settings_from_args(args: argparse.Namespace, figures: bool = True) -> EvalSettings:
     """The evaluation's settings from parsed arguments (``figures``: an output folder is given)."""
-    from ..evaluate.generative_split import GenerativeSettings
+    from ..evaluate import EvalSettings
 
     if args.heldout is not None and args.folds is not None:
         raise UsageError("--heldout and --folds: give one split (a held-out folder is one fold)")
@@ -103,10 +103,9 @@ def settings_from_args(args: argparse.Namespace, figures: bool = True) -> Genera
             raise FileNotFoundError(f"--heldout {heldout}: no such folder")
         if heldout.resolve() == Path(args.data).resolve():
             raise UsageError("--heldout: the held-out folder is the data folder")
-    return GenerativeSettings(T=args.T, T_cycle=args.T_cycle, n_t=args.n_t, quick=args.quick, seed=args.seed,
-                              figures=not args.no_figures and figures, cross_positions=args.cross_positions,
-                              cross_lp=args.cross_lp, cross_order_tol=args.cross_order_tol, heldout=args.heldout,
-                              **split)
+    return EvalSettings(T=args.T, T_cycle=args.T_cycle, n_t=args.n_t, quick=args.quick, seed=args.seed,
+                        figures=not args.no_figures and figures, cross_positions=args.cross_positions,
+                        cross_lp=args.cross_lp, cross_order_tol=args.cross_order_tol, heldout=args.heldout, **split)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -24,12 +24,17 @@ from ..io.dataset import DatasetError
 from ..settings import CROSS_LP, CROSS_ORDER_TOL, CROSS_POSITIONS, CrossSettings, ModelSettings
 from ..trees.structures import TreeSequence
 
-__all__ = ["EvalData", "EvalSettings", "Plant4D", "load_eval_data", "primary_source", "sources_of"]
+__all__ = ["MAX_FOLDS", "MORPHO_DRAWS", "QUICK_MORPHO_DRAWS", "EvalData", "EvalSettings", "Plant4D", "load_eval_data",
+           "primary_source", "sources_of"]
 
 SOURCES = ("mat", "swc", "synthetic", "folder")
 # the source the paper-style 4D experiments and the figures use when a folder has several: the paper's trees first
 PRIMARY_ORDER = ("mat", "synthetic", "swc", "folder")
 GENERIC_KIND = "plant"
+# the generative section's split: at most this many folds per kind by default
+MAX_FOLDS = 3
+# its independent morphometric draws per generator and fold (quick: QUICK_MORPHO_DRAWS at most)
+MORPHO_DRAWS, QUICK_MORPHO_DRAWS = 5, 2
 
 
 @dataclass
@@ -42,7 +47,14 @@ class EvalSettings:
     ``quick``: small versions of every experiment (tests, a first look); ``seed``: every random choice;
     ``cross_positions`` / ``cross_lp`` / ``cross_order_tol``: the cross-sequence registrations' settings
     (:func:`register4d`'s ``positions`` / ``cross_lp`` / ``cross_order_tol``, also the truth section's cross-plant
-    registrations).
+    registrations); ``heldout`` / ``folds`` / ``morpho_draws``: the generative section's split and draws
+    (:mod:`~torch4dtree.evaluate.generative_split`): a folder of held-out plants (the data folder is then the
+    training set), else the largest number of folds (at least 2), and the morphometric draws per generator and fold
+    (at least 1).
+
+    Example:
+        >>> EvalSettings(T=16).folds, EvalSettings(folds=2, quick=True).generative_draws()
+        (3, 2)
     """
 
     T: int = 64
@@ -56,6 +68,20 @@ class EvalSettings:
     cross_positions: str = CROSS_POSITIONS
     cross_lp: float | None = CROSS_LP
     cross_order_tol: float | None = CROSS_ORDER_TOL
+    heldout: str | None = None
+    folds: int = MAX_FOLDS
+    morpho_draws: int = MORPHO_DRAWS
+
+    def __post_init__(self) -> None:
+        if self.folds < 2:
+            raise ValueError(f"folds must be at least 2, got {self.folds}")
+        if self.morpho_draws < 1:
+            raise ValueError(f"morpho_draws must be at least 1, got {self.morpho_draws}")
+
+    def generative_draws(self) -> int:
+        """Morphometric draws per generator and fold of a run (:data:`QUICK_MORPHO_DRAWS` at most when
+        :attr:`quick`)."""
+        return min(self.morpho_draws, QUICK_MORPHO_DRAWS) if self.quick else self.morpho_draws
 
     def cross_settings(self) -> CrossSettings:
         """The cross-sequence registration settings (:func:`~torch4dtree.temporal.register4d`'s ``cross``).

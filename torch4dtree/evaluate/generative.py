@@ -14,16 +14,15 @@ tree PCA), which would reward generators that stay near the mean. Held-out plant
 written in the layout by ``model.population.transform`` (their frames resampled on the grid, as the population
 does); samples are ``model.trajectories(z)`` and training plants the population's trajectories, both with zeros in
 the extension (the model cannot leave its tree PCA; training frames keep ``tree_variance`` of theirs). The distance
-of two trajectories is the **4D distance after temporal registration** (:func:`~torch4dtree.temporal.
-register_trajectories`, batched): both directions are registered and the smaller distance kept (each is an upper
-bound of the same quotient distance; the minimum is tighter and symmetric). Branches of a held-out plant that match
+of two trajectories is the **4D distance after temporal registration**, the smaller of both directions
+(:func:`~torch4dtree.evaluate.generative_metrics.distance4d`). Branches of a held-out plant that match
 no slot of the layout cannot be written in it and are dropped: their cost is reported (``outside``, the root mean
 square over frames of the tree distance they carry, as ``FourDTreeModel.score().outside``; ``outside_share``, their
 share of the frames' squared norm), as is the part off the tree PCA (``off_tree_space``, ``off_tree_space_share`` of
 the frames' squared spread about the tree mean).
 
-**Split** (:mod:`~torch4dtree.evaluate.generative_split`, settings
-:class:`~torch4dtree.evaluate.generative_split.GenerativeSettings`): per kind, a seeded permutation
+**Split** (:mod:`~torch4dtree.evaluate.generative_split`; settings ``heldout``, ``folds``, ``morpho_draws`` of
+:class:`~torch4dtree.evaluate.data.EvalSettings`): per kind, a seeded permutation
 (``settings.generator``) of the plants is cut into ``min(N // 2, folds)`` near-equal folds (``folds`` 3 by default,
 2 for the fit-on-20 / 20-held-out protocol on 40 plants), so every plant is held out exactly once and every held-out
 set has at least 2 plants (COV and 1-NNA are meaningless with one); or, with ``heldout`` (a folder), the data
@@ -44,8 +43,9 @@ spans what the tree PCA misses of all these frames. Its pool is ``max(h, MORPHO_
 draw ``h`` of them without replacement; its novelty is measured against the encoded training plants. Beside it:
 the share of held-out squared SRVF norm at botanical keys no training plant had (``outside_keys_share``), organs
 shrinking / vanishing between frames (its samples, the paper model's, training and held-out plants) and its
-forecast of the second half (:func:`~torch4dtree.model.organ_forecast.forecast_organs`) against "the last observed
-frame stays" and the 4D mean.
+forecast of the second half (:func:`~torch4dtree.model.organ_forecast.forecast_organs`; its point the mean of
+``FORECAST_DRAWS`` continuations in the layout, one continuation's error beside it) against "the last observed frame
+stays" and the 4D mean.
 
 **Generators** (each draw: as many samples as held-out plants, the usual equal-size protocol; ``DRAWS = 50`` draws
 per fold, 4 when ``quick``; metrics per draw, summarised over all draws of all folds):
@@ -57,15 +57,11 @@ per fold, 4 when ``quick``; metrics per draw, summarised over all draws of all f
   modes (standardised), the others at 0;
 * ``mean``: the 4D mean alone (a collapsed generator).
 
-**Metrics** (``S`` samples, ``R`` held-out plants, ``d`` the ground metric): MMD ``= mean_r min_s d(r, s)`` (lower
-is better: every real plant has a close sample); COV ``= |{argmin_r d(s, r)}| / |R|`` in ``[0, 1]`` (higher is
-better: samples spread over the real plants); 1-NNA = the leave-one-out accuracy of the 1-nearest-neighbour
-classifier of ``S u R`` into "sample" / "real" in ``[0, 1]`` (50 % ideal: indistinguishable; 100 %: separable; near
-0 %: each sample sits on a real plant - memorisation of the evaluated set), with its accuracy on each set: where the
-real plants are farther from each other than from the mean, a collapsed generator reaches 50 % as samples 100 % /
-real 0 %, so the report's verdicts rank 1-NNA by how far both accuracies are from 50 %. ``sanity``: the memorising
-generator evaluated against the training set itself must give MMD 0, COV 1, 1-NNA 0. ``novelty``: the share of
-samples closer to a training plant than the median nearest-neighbour distance between training plants divided by 4.
+**Metrics** (:mod:`~torch4dtree.evaluate.generative_metrics`): MMD, COV and 1-NNA of each draw against the
+held-out plants, with 1-NNA's accuracy on each set (the report's verdicts rank 1-NNA by how far both accuracies are
+from 50 %). ``sanity``: the memorising generator evaluated against the training set itself must give MMD 0, COV 1,
+1-NNA 0. ``novelty``: the share of samples closer to a training plant than the median nearest-neighbour distance
+between training plants divided by 4.
 
 **Morphometrics** (:mod:`~torch4dtree.evaluate.morphometrics`, independent of the ground metric): each generator's
 samples decoded to skeletons against the held-out plants, on ``settings.morpho_draws`` independent draws per fold of
@@ -109,21 +105,20 @@ import torch
 from torch import Tensor
 
 from ..model import FourDTreeModel, OrganModel, TrajectoryMean
-from ..parallel import pair_matrix
 from ..space.pca import principal_axes
-from ..temporal.registration import register_trajectories, time_warp_trajectory
+from ..temporal.registration import time_warp_trajectory
 from ..temporal.trajectory import resample_trajectory
 from ..trees.structures import TreeSequence
 from .data import EvalData, EvalSettings, Plant4D, primary_source
+from .generative_metrics import distance4d, distance_matrix, novelty, set_metrics, within_draw
 from .generative_organs import event_rates, organ_forecasts, outside_keys_share
 from .generative_report import markdown
-from .generative_split import GenerativeSettings, folds_of, heldout_by_kind, load_heldout, splits
+from .generative_split import heldout_by_kind, load_heldout, splits
 from .morphometrics import AGES, compare_populations, files_curve, population_curves
 from .paper import SECONDS
 from .stats import summary
 
-__all__ = ["GENERATORS", "GenerativeSettings", "distance4d", "distance_matrix", "folds_of", "markdown", "novelty",
-           "run", "set_metrics"]
+__all__ = ["GENERATORS", "markdown", "run"]
 
 # generator streams of this section (settings.generator(offset)): split, then samples per fold
 SEED_OFFSET = 300
@@ -145,12 +140,10 @@ GENERATOR_WHAT = {
     "paper_scalar": "the authors' script: one uniform scalar in [-0.5, 0.5] on the first 3 modes",
     "mean": "the 4D mean alone",
 }
-NOVELTY_DIVISOR = 4.0
 NOVELTY_SAMPLES = 100  # per fold and generator: distances to every training plant
 RATE_BATCH, QUICK_RATE_BATCH = 10_000, 1_000
 DECODE_BATCH, QUICK_DECODE_BATCH = 8, 2
 PAPER_SECONDS = {"sample": SECONDS["sample"], "mean": SECONDS["mean_4d"]}
-CHUNK = 2048  # pairs per registration call (memory)
 MEAN_REPEATS = 3  # warm refits of the 4D mean timed per fold (median): the fit's own first call loads kernels
 # the organ model's samples in the ground metric per fold: at least as many as held-out plants
 MORPHO_SAMPLES, QUICK_MORPHO_SAMPLES = 10, 2
@@ -159,57 +152,6 @@ MORPHO_AGES = tuple(f"{u}" for u in AGES if u > 0)
 MORPHO_GENERATORS = ("organs", *GENERATORS)
 # organs shrinking / vanishing between frames: both models' samples, the training and the held-out plants
 EVENT_ROWS = ("organs", "model", "training", "held_out")
-
-
-# ----------------------------------------------------------------------------- ground metric
-def distance4d(a: Tensor, b: Tensor) -> Tensor:
-    """The ground metric (module doc) of pairs of trajectories ``a, b (P, n_t, k) -> (P,)``: 4D distance after
-    temporal registration, the smaller of the two directions."""
-    if a.shape != b.shape:
-        raise ValueError(f"trajectories must have one shape, got {tuple(a.shape)} and {tuple(b.shape)}")
-    out = []
-    for i in range(0, a.shape[0], CHUNK):
-        x, y = a[i:i + CHUNK].detach(), b[i:i + CHUNK].detach()
-        d = register_trajectories(torch.cat([x, y]), torch.cat([y, x])).distance  # both directions in one batch
-        out.append(torch.minimum(d[:len(x)], d[len(x):]))
-    return torch.cat(out) if out else a.new_zeros(0)
-
-
-def distance_matrix(x: Tensor, y: Tensor | None = None, executor: Executor | None = None) -> Tensor:
-    """``(n, m)`` ground distances between trajectories ``x (n, n_t, k)`` and ``y (m, n_t, k)``; ``y=None``: the
-    symmetric matrix of ``x`` (each pair once, zero diagonal). ``executor``: pieces of ``CHUNK`` pairs run there
-    (:func:`~torch4dtree.parallel.pair_matrix`), the same numbers as inline."""
-    return pair_matrix(distance4d, x, y, chunk=CHUNK, executor=executor)
-
-
-def set_metrics(d_ss: Tensor, d_sr: Tensor, d_rr: Tensor) -> dict[str, float]:
-    """MMD, COV and 1-NNA (module doc) of samples ``S`` against references ``R`` from their distances:
-    ``d_ss (S, S)``, ``d_sr (S, R)``, ``d_rr (R, R)``. Ties go to the lower index, samples before references.
-    ``nna_samples`` / ``nna_real``: the classifier's accuracy on each set (1-NNA is their mean when ``S = R``): a
-    collapsed generator gets 100 % / 0 % when the real plants are farther from each other than from its samples."""
-    S, R = d_sr.shape
-    if S == 0 or R == 0:
-        raise ValueError(f"need samples and references, got {S} and {R}")
-    mmd = float(d_sr.min(0).values.mean())
-    cov = int(torch.unique(d_sr.argmin(1)).numel()) / R
-    full = torch.cat([torch.cat([d_ss, d_sr], 1), torch.cat([d_sr.T, d_rr], 1)], 0).clone()
-    full.fill_diagonal_(math.inf)  # leave-one-out
-    is_real = torch.arange(S + R) >= S
-    right = (is_real[full.argmin(1)] == is_real).double()
-    return {"mmd": mmd, "cov": cov, "nna": float(right.mean()), "nna_samples": float(right[:S].mean()),
-            "nna_real": float(right[S:].mean())}
-
-
-def novelty(d_st: Tensor, d_tt: Tensor, divisor: float = NOVELTY_DIVISOR) -> dict[str, float]:
-    """How far samples are from the training plants: ``d_st (S, N)`` sample-training and ``d_tt (N, N)``
-    training-training distances. ``threshold`` = the median nearest-neighbour distance between training plants /
-    ``divisor``; ``share_closer`` = the share of samples closer than it to some training plant."""
-    nn = d_tt + torch.diag(torch.full((d_tt.shape[0],), math.inf, dtype=d_tt.dtype))
-    threshold = float(nn.min(1).values.median()) / divisor
-    nearest = d_st.min(1).values
-    return {"threshold": threshold, "share_closer": float((nearest < threshold).double().mean()),
-            "nearest_min": float(nearest.min()), "nearest_median": float(nearest.median()),
-            "training_nn_median": threshold * divisor}
 
 
 # ----------------------------------------------------------------------------- one fold
@@ -236,25 +178,6 @@ def _pool(name: str, model: FourDTreeModel, train: Tensor, h: int, draws: int, g
     else:
         raise ValueError(f"unknown generator {name!r}")
     return model.trajectories(z).detach(), torch.arange(P).reshape(draws, h)
-
-
-def _within_draw(pool: Tensor, idx: Tensor) -> Tensor:
-    """``(draws, h, h)`` ground distances between the samples of each draw (each distinct pool pair once)."""
-    D, h = idx.shape
-    out = pool.new_zeros(D, h, h)
-    if h < 2:
-        return out
-    i, j = torch.triu_indices(h, h, 1)
-    a, b = idx[:, i].reshape(-1), idx[:, j].reshape(-1)
-    lo, hi = torch.minimum(a, b), torch.maximum(a, b)
-    keys, inv = torch.unique(lo * pool.shape[0] + hi, return_inverse=True)
-    p, q = keys // pool.shape[0], keys % pool.shape[0]
-    d = pool.new_zeros(len(keys))  # a pool item drawn twice is at distance 0 from itself
-    distinct = p != q
-    d[distinct] = distance4d(pool[p[distinct]], pool[q[distinct]])
-    vals = d[inv].reshape(D, -1)
-    out[:, i, j], out[:, j, i] = vals, vals
-    return out
 
 
 def _fit(train: list[Plant4D], settings: EvalSettings, executor: Executor | None = None
@@ -390,7 +313,7 @@ def _fold(train: list[Plant4D], held: list[Plant4D], settings: EvalSettings, gen
     encode_seconds = (time.perf_counter() - t0) / len(held)
     h = len(held)
     n_morpho = QUICK_MORPHO_SAMPLES if settings.quick else MORPHO_SAMPLES
-    morpho_draws = GenerativeSettings.of(settings).draws()
+    morpho_draws = settings.generative_draws()
     t0 = time.perf_counter()
     organ_samples = organs.sample(max(h, n_morpho), generator=gen)
     organ_sample_seconds = (time.perf_counter() - t0) / len(organ_samples)
@@ -429,7 +352,7 @@ def _fold(train: list[Plant4D], held: list[Plant4D], settings: EvalSettings, gen
             pool = _pad(pool, r)
         # the training plants: known
         d_pr = d_rt.T if name == "memorise" else distance_matrix(pool, r_alpha, executor=executor)
-        d_ss = _within_draw(pool, idx)
+        d_ss = within_draw(pool, idx)
         per_draw[name] = [set_metrics(d_ss[j], d_pr[idx[j]], d_rr) for j in range(draws)]
         if name in ("model", "paper_scalar"):
             novel[name] = novelty(distance_matrix(pool[:NOVELTY_SAMPLES], t_alpha, executor=executor), d_tt)
@@ -504,7 +427,7 @@ def _fold(train: list[Plant4D], held: list[Plant4D], settings: EvalSettings, gen
 
 
 # ----------------------------------------------------------------------------- the section
-def _kind(plants: list[Plant4D], settings: GenerativeSettings, offset: int, progress: bool,
+def _kind(plants: list[Plant4D], settings: EvalSettings, offset: int, progress: bool,
           executor: Executor | None = None, heldout: list[Plant4D] | None = None) -> dict[str, Any]:
     folds = splits(plants, settings, settings.generator(SEED_OFFSET + offset), heldout)
     n = len(plants) + len(heldout or [])
@@ -558,21 +481,21 @@ def _kind(plants: list[Plant4D], settings: GenerativeSettings, offset: int, prog
                      "tree_pca": {k: summary(f["tree_pca"][k] for f in fc) for k in ("model", "last", "mean")},
                      "plants": len(fc), "wins_vs_last": sum(f["model"] < f["last"] for f in fc),
                      "wins_vs_mean": sum(f["model"] < f["mean"] for f in fc)},
-        "organ_forecast": {**{k: summary(f[k] for f in ofc) for k in ("organs", "last", "mean")},
+        "organ_forecast": {**{k: summary(f[k] for f in ofc) for k in ("organs", "organs_draw", "last", "mean")},
                            "final_length": {k: summary(f["final_length"][k] for f in ofc) for k in ("organs", "last")},
                            "plants": len(ofc), "wins_vs_last": sum(f["organs"] < f["last"] for f in ofc),
                            "wins_vs_mean": sum(f["organs"] < f["mean"] for f in ofc),
-                           "wins_vs_both": sum(f["organs"] < min(f["last"], f["mean"]) for f in ofc)},
+                           "wins_vs_both": sum(f["organs"] < min(f["last"], f["mean"]) for f in ofc),
+                           "draw_wins_vs_both": sum(f["organs_draw"] < min(f["last"], f["mean"]) for f in ofc)},
     }
 
 
 def run(datas: dict[str, EvalData], settings: EvalSettings, progress: bool = False, executor: Executor | None = None,
         heldout: EvalData | None = None) -> dict[str, Any]:
     """The section (module doc): ``{"generative": {...}, "timings": {...}}``; ``executor``: where the fits'
-    registrations, the encodings and the ground distances run (the same numbers as inline). ``settings``: an
-    :class:`EvalSettings` or a :class:`GenerativeSettings` (split, draws); ``heldout``: the held-out plants (else
-    read from ``settings.heldout`` when set, else folds)."""
-    settings = GenerativeSettings.of(settings)
+    registrations, the encodings and the ground distances run (the same numbers as inline). ``settings``: with the
+    split and the draws (``heldout``, ``folds``, ``morpho_draws``); ``heldout``: the held-out plants (else read from
+    ``settings.heldout`` when set, else folds)."""
     if heldout is None and settings.heldout is not None:
         heldout = load_heldout(settings.heldout, settings.T)
     source = primary_source(datas)

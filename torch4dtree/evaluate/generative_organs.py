@@ -18,7 +18,9 @@ Also here, measured on 4D trees whatever made them:
   within-sequence registration (the same path for samples, training and held-out plants).
 * :func:`organ_forecast`: the organ model's forecast (:func:`~torch4dtree.model.organ_forecast.forecast_organs`)
   of a held-out plant's second half, beside "the last observed frame stays", both written in the layout as a
-  whole sequence (observed frames, then the guess) and read at the plant's own frame times, and the 4D mean.
+  whole sequence (observed frames, then the guess) and read at the plant's own frame times, and the 4D mean. The
+  forecast's point is the mean of several continuations in the layout (its conditional mean), since the baselines
+  are points too.
 """
 
 from __future__ import annotations
@@ -36,13 +38,16 @@ from ..temporal.registration import time_warp_trajectory
 from ..temporal.within import register_sequence
 from ..trees.structures import Trees, TreeSequence
 
-__all__ = ["SHRINK_TOL", "event_rates", "organ_events", "organ_forecast", "organ_forecasts", "outside_keys_share"]
+__all__ = ["FORECAST_DRAWS", "SHRINK_TOL", "event_rates", "organ_events", "organ_forecast", "organ_forecasts",
+           "outside_keys_share"]
 
 # an organ shrinks between two frames when it loses more than this share of its length (skeleton noise and the
 # registration's splits move lengths by a few per cent)
 SHRINK_TOL = 0.1
 # times closer than this (data units) are one instant when a forecast is read at the plant's frame times
 SAME_TIME = 1e-9
+# continuations of the organ model averaged into its forecast point in the ground metric (organ_forecast)
+FORECAST_DRAWS = 8
 
 
 def outside_keys_share(organs: OrganModel, plant: TreeSequence) -> float:
@@ -130,8 +135,14 @@ def _whole(observed: TreeSequence, future: TreeSequence) -> TreeSequence:
 
 
 def organ_forecast(paper: FourDTreeModel, organs: OrganModel, plant: TreeSequence, truth: Tensor, mean: Tensor,
-                   generator: torch.Generator) -> dict[str, Any] | None:
+                   generator: torch.Generator, draws: int = FORECAST_DRAWS) -> dict[str, Any] | None:
     """Forecast errors of one held-out plant's second half (``n // 2`` frames observed; module doc).
+
+    The organ model's point is the **mean of** ``draws`` **continuations' layout features** (its conditional mean
+    in the ground metric, as the 4D mean baseline is the population's mean): one continuation is a draw of the
+    conditional distribution, whose expected squared distance to the truth is the point's plus the distribution's
+    spread, so a single draw loses to any point guess of the same quality (``organs_draw``: the first
+    continuation's error, for scale).
 
     Args:
         paper: the fold's paper model (its layout is the ground metric).
@@ -140,31 +151,38 @@ def organ_forecast(paper: FourDTreeModel, organs: OrganModel, plant: TreeSequenc
         truth: ``(n - n // 2, F)`` its forecast frames' layout features in its whole-sequence encoding.
         mean: ``(n - n // 2, F)`` the 4D mean's features at the same ages (the mean baseline).
         generator: the forecast's random stream.
+        draws: continuations averaged into the point (at least 1).
 
     Returns:
-        ``{"organs", "last", "mean"}``: mean tree distance in the layout over the forecast frames (``last``:
-        the last observed frame kept, encoded as the forecast is); ``final_length``: the relative error of the
-        last frame's total length of the forecast and of the last observed frame; ``None`` below 2 frames.
+        ``{"organs", "organs_draw", "last", "mean"}``: mean tree distance in the layout over the forecast frames
+        (``last``: the last observed frame kept, encoded as each continuation is); ``final_length``: the relative
+        error of the last frame's total length of the continuations (median) and of the last observed frame;
+        ``None`` below 2 frames.
     """
     n = len(plant)
     half = n // 2
     if half < 1 or n - half < 1:
         return None
     observed, at = plant[list(range(half))], plant.times[half:]
-    fc = forecast_organs(organs, observed, n=1, generator=generator)[0]
     last = TreeSequence(observed.frames[[half - 1] * (n - half)], at.to(observed.times.dtype), plant.name)
-    errs, final = {}, {}
     true_final = float(plant.frames[n - 1].total_length()[0])
-    for key, guess in (("organs", fc), ("last", last)):
+
+    def encoded(guess: TreeSequence) -> tuple[Tensor, float]:
+        """The guess's layout features at the plant's forecast times, written with the observed frames, and the
+        relative error of its total length at the plant's last time."""
         whole = _whole(observed, guess)
-        enc = paper.population.transform(whole)
-        feats = _read_at(enc.aligned.features().to(truth), whole.times, at)
-        errs[key] = float((feats - truth).norm(dim=-1).mean())
+        feats = _read_at(paper.population.transform(whole).aligned.features().to(truth), whole.times, at)
         j = int(torch.searchsorted(whole.times.to(torch.float64).contiguous(),
                                    at[-1].to(torch.float64).reshape(1)).clamp(max=len(whole) - 1))
-        final[key] = abs(float(whole.frames[j].total_length()[0]) - true_final) / max(true_final, SAME_TIME)
-    errs["mean"] = float((mean.to(truth) - truth).norm(dim=-1).mean())
-    return {**errs, "final_length": final}
+        return feats, abs(float(whole.frames[j].total_length()[0]) - true_final) / max(true_final, SAME_TIME)
+
+    fcs = [encoded(f) for f in forecast_organs(organs, observed, n=draws, generator=generator)]
+    last_feats, last_final = encoded(last)
+    guesses = {"organs": torch.stack([f for f, _ in fcs]).mean(0), "organs_draw": fcs[0][0], "last": last_feats,
+               "mean": mean.to(truth)}
+    errs = {key: float((x - truth).norm(dim=-1).mean()) for key, x in guesses.items()}
+    finals = torch.tensor([e for _, e in fcs], dtype=torch.float64)
+    return {**errs, "final_length": {"organs": float(finals.median()), "last": last_final}}
 
 
 def organ_forecasts(paper: FourDTreeModel, organs: OrganModel, plants: Sequence[TreeSequence], encodings: Sequence[Any],

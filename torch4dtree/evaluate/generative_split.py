@@ -1,4 +1,4 @@
-"""Which plants the generative section fits on and which it holds out (docs/method.md §7), and its own settings.
+"""Which plants the generative section fits on and which it holds out (docs/method.md §7).
 
 Two ways, per kind of plant:
 
@@ -10,63 +10,24 @@ Two ways, per kind of plant:
   by name; when each side has exactly one kind they are paired whatever their names (a dataset folder without
   ``dataset.json`` reads as the kind ``plant``).
 
-The plausibility protocol's draws (``morpho_draws``): every generator's morphometrics are measured on that many
-independent draws of as many samples as held-out plants (the equal-size comparison the training plants' own row
-makes), summarised by the median and the worst draw: with 20-30 samples one draw moves the worst median ratio and
-the morphometric 1-NNA by 0.1-0.2.
+The split and the draws are :class:`~torch4dtree.evaluate.data.EvalSettings`' ``heldout``, ``folds`` and
+``morpho_draws``. The plausibility protocol's draws (``morpho_draws``): every generator's morphometrics are
+measured on that many independent draws of as many samples as held-out plants (the equal-size comparison the
+training plants' own row makes), summarised by the median and the worst draw: with 20-30 samples one draw moves the
+worst median ratio and the morphometric 1-NNA by 0.1-0.2.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
 from pathlib import Path
 
 import torch
 
-from .data import EvalData, EvalSettings, Plant4D, load_eval_data, primary_source, sources_of
+from .data import MAX_FOLDS, EvalData, EvalSettings, Plant4D, load_eval_data, primary_source, sources_of
 
-__all__ = ["MAX_FOLDS", "MORPHO_DRAWS", "GenerativeSettings", "folds_of", "heldout_by_kind", "load_heldout",
-           "splits"]
+__all__ = ["folds_of", "heldout_by_kind", "load_heldout", "splits"]
 
-MAX_FOLDS = 3
-# independent morphometric draws per generator and fold (quick: QUICK_MORPHO_DRAWS)
-MORPHO_DRAWS, QUICK_MORPHO_DRAWS = 5, 2
 MIN_PLANTS = 2  # per side of a split: COV and 1-NNA are meaningless with one held-out plant
-
-
-@dataclass
-class GenerativeSettings(EvalSettings):
-    """:class:`~torch4dtree.evaluate.data.EvalSettings` and the generative section's split and draws.
-
-    ``heldout``: a folder of held-out plants (the data folder is then the training set; module doc), ``None`` for
-    folds; ``folds``: the largest number of folds (at least 2); ``morpho_draws``: morphometric draws per generator
-    and fold (at least 1).
-
-    Example:
-        >>> GenerativeSettings.of(EvalSettings(T=16)).folds, GenerativeSettings(folds=2).morpho_draws
-        (3, 5)
-    """
-
-    heldout: str | None = None
-    folds: int = MAX_FOLDS
-    morpho_draws: int = MORPHO_DRAWS
-
-    def __post_init__(self) -> None:
-        if self.folds < 2:
-            raise ValueError(f"folds must be at least 2, got {self.folds}")
-        if self.morpho_draws < 1:
-            raise ValueError(f"morpho_draws must be at least 1, got {self.morpho_draws}")
-
-    @classmethod
-    def of(cls, settings: EvalSettings) -> GenerativeSettings:
-        """``settings`` itself when it is one, else its fields with this class's defaults."""
-        if isinstance(settings, cls):
-            return settings
-        return cls(**{f.name: getattr(settings, f.name) for f in fields(EvalSettings)})
-
-    def draws(self) -> int:
-        """Morphometric draws of a run (:data:`QUICK_MORPHO_DRAWS` at most when :attr:`quick`)."""
-        return min(self.morpho_draws, QUICK_MORPHO_DRAWS) if self.quick else self.morpho_draws
 
 
 def folds_of(n: int, generator: torch.Generator, max_folds: int = MAX_FOLDS) -> list[list[int]]:
@@ -113,14 +74,14 @@ def heldout_by_kind(train: EvalData, heldout: EvalData) -> dict[str, list[Plant4
     return {k: heldout.by_kind(k) for k in train.kinds if heldout.by_kind(k)}
 
 
-def splits(plants: list[Plant4D], settings: GenerativeSettings, generator: torch.Generator,
+def splits(plants: list[Plant4D], settings: EvalSettings, generator: torch.Generator,
            heldout: list[Plant4D] | None = None) -> list[tuple[list[Plant4D], list[Plant4D]]]:
     """``(training, held-out)`` plants of each fold of one kind (module doc); ``heldout`` given: one fold, the
     plants against it; empty when a side would have fewer than 2 plants. ``quick``: the fold with the largest
     training set only.
 
     Example:
-        >>> [(len(t), len(h)) for t, h in splits(list(range(40)), GenerativeSettings(folds=2), torch.Generator())]
+        >>> [(len(t), len(h)) for t, h in splits(list(range(40)), EvalSettings(folds=2), torch.Generator())]
         [(20, 20), (20, 20)]
     """
     if heldout is not None:
