@@ -176,10 +176,10 @@ def _same_organ(matches: list[tuple[int, int]], organs_b: list[int], organs_a: l
 
 
 def test_default_cross_registration_keeps_organs_and_their_order(beans):
-    """The default (node ranks on the stem and on shoots, lp 100, children in their order along the parent) matches
-    every organ slot of three pairs to its own organ, and the main branch's matched leaves keep their order up the
-    stem; warped positions, lp 10 and any order match leaf 3 to leaf 6 and the like (precision 0.03 / 0.07 / 0.21
-    on these pairs, 1.00 with the default)."""
+    """The default (node ranks on the main branch, lp 12, children in their order along the parent) matches every
+    organ slot of three pairs to its own organ, and the main branch's matched leaves keep their order up the stem;
+    warped positions, lp 10 and any order match leaf 3 to leaf 6 and the like (precision 0.03 / 0.07 / 0.21 on these
+    pairs, 1.00 with the default)."""
     aligned, organs = beans
     old_precision = []
     for i, j in ((0, 1), (0, 2), (1, 2)):
@@ -205,12 +205,12 @@ def test_register4d_keeps_the_registration_organs_at_a_large_lp(beans, monkeypat
     organs stay matched. Planted bug, no completion: the index order with 4D warps wins (3 of 17 slots the same
     organ)."""
     aligned, organs = beans
-    assert (settings_module.CROSS_POSITIONS, settings_module.CROSS_LP) == ("nodes", 100.0)  # the population's
-    r = register4d(aligned[0], aligned[1], rotation="vertical")
+    cross = CrossSettings(positions="nodes", lp=100.0)  # the simulator plants' setting across plants
+    r = register4d(aligned[0], aligned[1], rotation="vertical", cross=cross)
     same = _same_organ(r.matches, organs[1], organs[0])
     assert r.spatial_candidate.startswith("completed") and sum(same) == len(same) >= 15, (r.spatial_candidate, same)
     assert r.distance_after_spatial < r.distance_before
     monkeypatch.setattr(spatiotemporal_module, "completed_matches", lambda matches, *args: sorted(matches))
-    bug = register4d(aligned[0], aligned[1], rotation="vertical")
+    bug = register4d(aligned[0], aligned[1], rotation="vertical", cross=cross)
     same = _same_organ(bug.matches, organs[1], organs[0])
     assert bug.spatial_candidate == "index_order_4d" and sum(same) < 0.5 * len(same), (bug.spatial_candidate, same)
