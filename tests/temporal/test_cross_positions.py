@@ -159,21 +159,32 @@ def test_checkpoint_keeps_the_setting_and_old_ones_load_as_warped(plants, tmp_pa
     assert rebuilt.population.cross == warped and rebuilt.settings.cross == warped
 
 
-def test_default_cross_registration_keeps_organs_and_their_order():
-    """Bean plants whose leaves look alike: the default (node ranks on the main branch, lp 12, children in their
-    order along the parent) matches every slot of three pairs to its own organ, and the main branch's matched
-    leaves keep their order up the stem; warped positions, lp 10 and any order match leaf 3 to leaf 6
-    and the like (precision 0.03 / 0.07 / 0.21 on these pairs, 1.00 with the default)."""
-    from torch4dtree.data import synthetic_dataset
+@pytest.fixture(scope="module")
+def beans() -> tuple[list, list]:
+    """Three bean plants whose leaves look alike, registered within themselves, and every slot's organ."""
     from torch4dtree.temporal import register_sequence
 
     plants = synthetic_dataset("bean", plants=5, seed=0, n_frames=6, T=16, dtype=torch.float64)[2:]
     aligned = [register_sequence(p.sequence) for p in plants]
-    organs = [truth._slot_labels(p, a) for p, a in zip(plants, aligned)]  # reads only p.sequence
+    return aligned, [truth._slot_labels(p, a) for p, a in zip(plants, aligned)]  # reads only p.sequence
+
+
+def _same_organ(matches: list[tuple[int, int]], organs_b: list[int], organs_a: list[int]) -> list[bool]:
+    """Per matched pair (B slot, A slot): the same organ, pairs with a spur (label 99) left out as
+    :func:`~torch4dtree.data.identity_scores` does (a spur is no organ)."""
+    return [organs_b[b] == organs_a[a] for b, a in matches if 99 not in (organs_b[b], organs_a[a])]
+
+
+def test_default_cross_registration_keeps_organs_and_their_order(beans):
+    """The default (node ranks on the main branch, lp 12, children in their order along the parent) matches every
+    organ slot of three pairs to its own organ, and the main branch's matched leaves keep their order up the stem;
+    warped positions, lp 10 and any order match leaf 3 to leaf 6 and the like (precision 0.03 / 0.07 / 0.21 on these
+    pairs, 1.00 with the default)."""
+    aligned, organs = beans
     old_precision = []
     for i, j in ((0, 1), (0, 2), (1, 2)):
         r = register4d(aligned[i], aligned[j], rotation="vertical")
-        same = [organs[j][b] == organs[i][a] for b, a in r.matches if organs[i][a] != 99]  # 99: spurs
+        same = _same_organ(r.matches, organs[j], organs[i])
         assert sum(same) >= 0.95 * len(same), (i, j, sum(same), len(same))
         # the main branch's children (slot 0 in both), in A's order along the stem: B's partners do not go down
         rep_a, rep_b = representative_tree(aligned[i]), representative_tree(aligned[j])
@@ -183,6 +194,23 @@ def test_default_cross_registration_keeps_organs_and_their_order():
         assert all(y2 >= y1 - 0.02 for (_, y1), (_, y2) in zip(kids, kids[1:])), kids
         old = register4d(aligned[i], aligned[j], rotation="vertical",
                          cross=CrossSettings(positions="warped", lp=10.0, order_tol=None))
-        hits = [organs[j][b] == organs[i][a] for b, a in old.matches if organs[i][a] != 99]
+        hits = _same_organ(old.matches, organs[j], organs[i])
         old_precision.append(sum(hits) / len(hits))
     assert min(old_precision) < 0.5, old_precision
+
+
+def test_register4d_keeps_the_registration_organs_at_a_large_lp(beans, monkeypatch):
+    """lp 100 leaves spurs and organs at other nodes unmatched, which the 4D distance (lp 1) pays for in full: the
+    registration's pairs completed in index order between them (``completed``) still beat the index order, and the
+    organs stay matched. Planted bug, no completion: the index order with 4D warps wins (3 of 17 slots the same
+    organ)."""
+    aligned, organs = beans
+    cross = CrossSettings(positions="nodes", lp=100.0)  # the simulator plants' setting across plants
+    r = register4d(aligned[0], aligned[1], rotation="vertical", cross=cross)
+    same = _same_organ(r.matches, organs[1], organs[0])
+    assert r.spatial_candidate.startswith("completed") and sum(same) == len(same) >= 15, (r.spatial_candidate, same)
+    assert r.distance_after_spatial < r.distance_before
+    monkeypatch.setattr(spatiotemporal_module, "completed_matches", lambda matches, *args: sorted(matches))
+    bug = register4d(aligned[0], aligned[1], rotation="vertical", cross=cross)
+    same = _same_organ(bug.matches, organs[1], organs[0])
+    assert bug.spatial_candidate == "index_order_4d" and sum(same) < 0.5 * len(same), (bug.spatial_candidate, same)

@@ -77,11 +77,13 @@ def test_register4d_command_line(tmp_path, capsys):
 
 def test_spatial_stage_keeps_the_smallest_candidate():
     """The kept spatial candidate is the smallest of the candidates' 4D distances, recomputed here from their
-    layouts (the registration's warps, its correspondence with identity warps, index order, and the last two with
-    the 4D-distance warps of fourd_warps on every matched slot or on the childless ones)."""
+    layouts (the registration's warps, its correspondence with identity warps, that correspondence completed in index
+    order between its pairs, index order, and the last three with the 4D-distance warps of fourd_warps on every
+    matched slot or on the childless ones; the index order's only where nothing else beats the index order)."""
     from torch4dtree.temporal.registration import register_trajectories
     from torch4dtree.temporal.spatiotemporal import (
         combine_sequences,
+        completed_matches,
         fourd_warps,
         layout_trajectories,
         representative_tree,
@@ -108,8 +110,14 @@ def test_spatial_stage_keeps_the_smallest_candidate():
 
     parents = set(B.aligned.slot_parent.tolist())
     dists = {"registered": distance(reg.matches, reg.gamma.double())[1]}
-    for name, matches in (("correspondence", reg.matches), ("index_order", index_order_matches(rep_b, rep_a))):
+    filled = completed_matches(reg.matches, rep_b.parent.tolist(), rep_a.parent.tolist(), rep_b.s.tolist(),
+                               rep_a.s.tolist())
+    assert len(filled) > len(reg.matches)  # the case has a completion
+    for name, matches in (("correspondence", reg.matches), ("completed", filled),
+                          ("index_order", index_order_matches(rep_b, rep_a))):
         layout, dists[name] = distance(matches, ident)
+        if name == "index_order" and min(dists.values()) < dists[name]:
+            continue  # the index order's 4D warps only where nothing else beats the index order
         g4 = fourd_warps(layout, len(A), A.times, B.times, 16, matches, ident)
         leaves = ident.clone()
         childless = [k for k, _ in matches if k not in parents]
@@ -149,7 +157,8 @@ def test_fourd_warps_undo_a_reparameterisation_of_every_frame():
 
 def test_spatial_stage_lowers_real_pairs_where_the_first_registration_does_not():
     """Pheno4D maize (.mat, T = 64). maize01 / maize03: the registration's warps, fitted to each branch's latest
-    shape, misfit the younger frames; its correspondence is kept, with identity or 4D-distance warps.
+    shape, misfit the younger frames; its correspondence is kept (completed in index order between its pairs),
+    with identity or 4D-distance warps.
     maize02 / maize03 with the space's own lp, warped positions and any order in the cross registration (the
     setting of the paper's method): neither registered candidate of rotation="none" beats index order; the index
     order with the 4D-distance warps lowers it, and the fallback vertical rotation search lowers it further.
@@ -162,7 +171,7 @@ def test_spatial_stage_lowers_real_pairs_where_the_first_registration_does_not()
     raw = {n: read_sequence(pheno4d("mat", f"maize0{n}_seq"), opts).sequence for n in (1, 2, 3)}
     seqs = {n: register_sequence(raw[n], positions="warped") for n in (1, 2, 3)}
     r = register4d(seqs[1], seqs[3])
-    assert r.spatial_candidate.startswith("correspondence")
+    assert r.spatial_candidate.startswith(("correspondence", "completed"))
     assert r.distance_after_spatial < r.distance_before - 1e-3
     paper = CrossSettings(lp=None, positions="warped", order_tol=None)
     plain = register4d(seqs[2], seqs[3], cross=dataclasses.replace(paper, fallback_rotation=None))

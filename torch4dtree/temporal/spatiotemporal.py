@@ -18,11 +18,16 @@ The pipeline, for 4D trees ``A`` (reference) and ``B`` (moving):
    candidate beats index order, the representatives are registered again with a wider rotation search
    (``CrossSettings.fallback_rotation``, default ``"vertical"``) and its two candidates
    (``"registered_vertical"``, ``"correspondence_vertical"``) join.
-   Last, the registration's correspondences are tried again with the warps that minimise the 4D distance itself
-   (:func:`fourd_warps`, one elastic matching per slot over all times at once; ``"correspondence_4d"``...), and,
-   where still no registered candidate beats index order, the index order too (``"index_order_4d"``): where the
-   index order is already the best correspondence (sequences chained by node rank), the spatial stage still
-   lowers the distance through the branches' parameterisations.
+   Each registration's correspondence is also *completed* by the index order where the two agree
+   (:func:`completed_matches`: pairs of slots both left unmatched under matched parents; ``"completed"``, identity
+   warps): a registration with a large ``lp`` leaves organs at different nodes and spurs unmatched, which the 4D
+   distance (the space's ``lp``) pays for in full, so without it the index order could beat the registration's
+   organs on distance alone. Last, the registration's correspondences (found and completed) are tried again with
+   the warps that minimise the 4D distance itself (:func:`fourd_warps`, one elastic matching per slot over all
+   times at once; ``"correspondence_4d"``, ``"completed_4d"``...), and, where still no registered candidate beats
+   index order, the index order too (``"index_order_4d"``): where the index order is already the best
+   correspondence (sequences chained by node rank), the spatial stage still lowers the distance through the
+   branches' parameterisations.
 3. **Tree space**: PCA of all frames' weighted SRVFT features (all components by default, so coefficient
    distances are exactly tree distances); each 4D tree becomes a trajectory in ``R^k``, resampled at ``n_t``
    equally spaced normalised times between its actual frame times.
@@ -70,9 +75,9 @@ from .registration import TemporalRegistration, geodesic4d, trajectory_distance
 from .trajectory import fine_size, resample_trajectory, trajectory_srvf
 from .within import AlignedSequence, inverse_at, register_sequence
 
-__all__ = ["SpatiotemporalRegistration", "bounded_slots", "combine_many", "combine_sequences", "fourd_warps",
-           "grow_union", "layout_trajectories", "open_slots", "place_sequence", "place_targets", "register4d",
-           "representative_tree", "slot_masses", "union_subset"]
+__all__ = ["SpatiotemporalRegistration", "bounded_slots", "combine_many", "combine_sequences", "completed_matches",
+           "fourd_warps", "grow_union", "layout_trajectories", "open_slots", "place_sequence", "place_targets",
+           "register4d", "representative_tree", "slot_masses", "union_subset"]
 
 
 
@@ -458,6 +463,60 @@ def fourd_warps(layout: AlignedTrees, n_ref: int, ref_times: Tensor, mov_times: 
     return out
 
 
+def completed_matches(matches: Sequence[tuple[int, int]], parent_mov: Sequence[int], parent_ref: Sequence[int],
+                      s_mov: Sequence[float], s_ref: Sequence[float]) -> list[tuple[int, int]]:
+    """``matches`` completed in index order between its pairs: under every matched pair of parents, the children
+    both trees leave unmatched between two consecutive matched siblings (below the first, above the last) are paired
+    in their order along the parents, extras left out (as :func:`~torch4dtree.trees.registration.index_order_matches`
+    does on whole nodes), parents first, so that added pairs keep their order with the matched siblings.
+
+    Args:
+        matches: ``[(moving branch, reference branch), ...]``, a partial matching mapping parents to parents.
+        parent_mov, parent_ref: every branch's parent (``-1``: the main branch) in the moving / reference tree.
+        s_mov, s_ref: every branch's place on its parent.
+
+    Returns:
+        ``matches`` and the added pairs, sorted by moving branch. Why: a registration with a large ``lp`` leaves
+        organs at different nodes (and spurs) unmatched, which the 4D distance (the space's ``lp``) would rather pair;
+        completed, the registration's own pairs can still beat the index order there (module doc).
+
+    Example (stems with three children; the middle ones matched, then B's lowest to A's highest: nothing pairs
+    across it):
+        >>> s = [0.0, 0.2, 0.5, 0.8]
+        >>> completed_matches([(0, 0), (2, 2)], [-1, 0, 0, 0], [-1, 0, 0, 0], s, s)
+        [(0, 0), (1, 1), (2, 2), (3, 3)]
+        >>> completed_matches([(0, 0), (1, 3)], [-1, 0, 0, 0], [-1, 0, 0, 0], s, s)
+        [(0, 0), (1, 3)]
+    """
+    out = dict(matches)
+    kids_mov: dict[int, list[int]] = {}
+    kids_ref: dict[int, list[int]] = {}
+    for kids, parent, s in ((kids_mov, parent_mov, s_mov), (kids_ref, parent_ref, s_ref)):
+        for c, p in enumerate(parent):
+            if p >= 0:
+                kids.setdefault(p, []).append(c)
+        for v in kids.values():
+            v.sort(key=lambda c: s[c])
+    pending = sorted(out.items())
+    while pending:
+        pb, pa = pending.pop(0)
+        km, kr = kids_mov.get(pb, []), kids_ref.get(pa, [])
+        taken = set(out.values())
+        # the matched siblings in B's order cut both child lists into gaps; each gap paired in order
+        cuts = [(km.index(b), kr.index(a)) for b, a in sorted(out.items(), key=lambda x: s_mov[x[0]])
+                if parent_mov[b] == pb and b in km and a in kr]
+        lo_m = lo_r = 0
+        for hi_m, hi_r in [*cuts, (len(km), len(kr))]:
+            free_m = [b for b in km[lo_m:hi_m] if b not in out]
+            free_r = [a for a in kr[lo_r:hi_r] if a not in taken]
+            for b, a in zip(free_m, free_r):
+                out[b] = a
+                taken.add(a)
+                pending.append((b, a))
+            lo_m, lo_r = hi_m + 1, max(lo_r, hi_r + 1)
+    return sorted(out.items())
+
+
 def register4d(reference: TreeSequence | AlignedSequence, moving: TreeSequence | AlignedSequence,
                lambdas: Sequence[float] = (1.0, 1.0, 1.0), rotation: str = "none", n_t: int = DEFAULT_NT,
                n_components: int | None = None, progress: bool = False, time_weight: float = TIME_WEIGHT,
@@ -578,12 +637,16 @@ def register4d(reference: TreeSequence | AlignedSequence, moving: TreeSequence |
         suffix = "" if k == 0 else f"_{rot}"
         candidates += [score(f"registered{suffix}", reg.matches, reg.gamma.to(torch.float64), R),
                        score(f"correspondence{suffix}", reg.matches, ident, R)]
-    # the registration's correspondences again with the warps that minimise the 4D distance itself (fourd_warps);
-    # the index order's only where no registered candidate beats it: where one does, the registration's
-    # correspondence is the organs' (synthetic bean: an index order with 4D warps can edge below it, 85 % of the
-    # slots the same organ instead of 96 %)
+        filled = completed_matches(reg.matches, rep_b.parent.tolist(), rep_a.parent.tolist(), rep_b.s.tolist(),
+                                   rep_a.s.tolist())
+        if len(filled) > len(reg.matches):
+            candidates.append(score(f"completed{suffix}", filled, ident, R))
+    # the registration's correspondences (found and completed) again with the warps that minimise the 4D distance
+    # itself (fourd_warps); the index order's only where no registered candidate beats it: where one does, the
+    # registration's correspondence is the organs' (synthetic bean: an index order with 4D warps can edge below it,
+    # 85 % of the slots the same organ instead of 96 %)
     d_before = candidates[0].distance
-    candidates += [with_4d_warps(c) for c in candidates if c.name.startswith("correspondence")]
+    candidates += [with_4d_warps(c) for c in candidates if c.name.startswith(("correspondence", "completed"))]
     if min(c.distance for c in candidates[1:]) >= d_before:
         candidates.append(with_4d_warps(candidates[0]))
     seconds["cross_sequence"] = time.perf_counter() - t0
