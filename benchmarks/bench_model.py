@@ -30,7 +30,8 @@ import torch
 from torch4dtree.bench.trees import default_data_root
 from torch4dtree.data import synthetic_dataset
 from torch4dtree.evaluate import load_eval_data
-from torch4dtree.evaluate.generative import PAPER_SECONDS, distance_matrix, novelty
+from torch4dtree.evaluate.generative import PAPER_SECONDS
+from torch4dtree.evaluate.generative_metrics import distance_matrix, novelty
 from torch4dtree.model import FourDTreeModel
 from torch4dtree.settings import ModelSettings
 

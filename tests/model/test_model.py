@@ -427,7 +427,7 @@ def test_samples_are_new_plants_not_copies() -> None:
     temporal registration in the model's tree space) than the median nearest-neighbour distance between training
     plants divided by 4 (about 20 s; benchmarks/bench_model.py runs the same at T = 64)."""
     from torch4dtree.data import synthetic_dataset
-    from torch4dtree.evaluate.generative import distance_matrix, novelty
+    from torch4dtree.evaluate.generative_metrics import distance_matrix, novelty
 
     seqs = [p.sequence for p in synthetic_dataset("tomato", plants=20, seed=0, n_frames=6, T=16)]
     m = FourDTreeModel(ModelSettings(n_t=16)).fit(seqs)

@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from torch4dtree.data import synthetic_plant
-from torch4dtree.evaluate.generative import CHUNK, distance4d, distance_matrix
+from torch4dtree.evaluate.generative_metrics import CHUNK, distance4d, distance_matrix
 from torch4dtree.io import read_dataset, write_sequence
 from torch4dtree.io.dataset import LoadOptions
 from torch4dtree.model import FourDTreeModel

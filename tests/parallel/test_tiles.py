@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from torch4dtree.data import synthetic_plant
-from torch4dtree.evaluate.generative import CHUNK, distance4d, distance_matrix
+from torch4dtree.evaluate.generative_metrics import CHUNK, distance4d, distance_matrix
 from torch4dtree.parallel import InlineExecutor, TileRecordError, pair_matrix, tiled_matrix
 from torch4dtree.trees.pairwise import pairwise_distances
 from torch4dtree.trees.registration import register_to_reference
