@@ -53,6 +53,16 @@ class RankedTree(Trees):
     counted on it shift every organ above an extra one; the ranks its branches had on the plants they came from are
     those a plant registered onto it has on its own tree. A tree derived from it (``resample``, ``to``) is a plain
     :class:`Trees` again.
+
+    Example (a stem with two leaves; the upper one given rank 2, a node being missing on this tree):
+        >>> z = torch.linspace(0, 1, 4, dtype=torch.float64)[:, None]
+        >>> stem, leaf = torch.cat([0 * z, 0 * z, 9 * z], 1), torch.cat([2 * z, 0 * z, 3 + 0 * z], 1)
+        >>> t = Trees.from_branches([[stem, leaf, leaf + torch.tensor([0.0, 0.0, 3.0])]], [[-1, 0, 0]], T=8,
+        ...                         dtype=torch.float64)
+        >>> ranks = torch.tensor([0.0, 0.0, 2.0], dtype=torch.float64)
+        >>> given = RankedTree(t.points, t.parent, t.s, t.num_branches, t.label, ranks, "nodes")
+        >>> prepare_tree(t, (1, 1, 1), "nodes").s.round(1).tolist(), prepare_tree(given, (1, 1, 1), "nodes").s.tolist()
+        ([0.0, 0.0, 1.0], [0.0, 0.0, 2.0])
     """
 
     ranks: Tensor
