@@ -148,3 +148,32 @@ def test_bounded_slots_keeps_parents():
         kept = bounded_slots(mass, parent, k)
         assert len(kept) == k and all(parent[u] in kept for u in kept if parent[u] >= 0)
     assert bounded_slots(mass, parent, 3) == [0, 1, 2]
+
+
+@pytest.mark.parametrize("positions, lp", [("nodes", 100.0), ("rank", 12.0)])
+def test_transform_writes_a_training_plant_as_the_fit_did(positions: str, lp: float) -> None:
+    """The union representative carries every plant's organs at its nodes; a plant registered onto it is compared
+    with the node ranks its branches had on the plants they came from (``ref_ranks``), so ``transform`` writes a
+    training plant exactly as the fit did, nothing outside the layout. Ranks counted on the union itself shift every
+    organ above an extra one: with ``nodes`` the reference plant then matches 29 of its 47 branches and its last
+    frame leaves a squared norm of 413 outside the layout."""
+    from torch4dtree.data import synthetic_dataset
+
+    plants = [p.sequence for p in synthetic_dataset("tomato", plants=4, seed=0, n_frames=4, T=12)][:3]
+    pop = Population(n_t=6, medoid_candidates=2, cross=CrossSettings(positions=positions, lp=lp)).fit(plants)
+    assert pop.ref_ranks.shape == (pop.ref_parent.shape[0],)
+    assert pop.layout_ is not None and pop.report_["slots_opened"] > pop.report_["reference_slots"]
+    start = 0
+    for seq in plants:
+        enc = pop.transform(seq)
+        n = len(seq)
+        assert torch.allclose(enc.aligned.q, pop.layout_.q[start:start + n], atol=1e-9)
+        assert torch.equal(enc.aligned.present, pop.layout_.present[start:start + n])
+        assert float(enc.dropped_sq_norm.max()) < 1e-12
+        start += n
+    # a checkpoint saved without the ranks loads (the union's own ranks)
+    state = pop.state_dict()
+    del state["ref_ranks"]
+    old = Population().to(torch.float64)
+    old.load_state_dict(state)
+    assert old.ref_ranks.numel() == 0 and old.reference_tree().points.shape[0] == pop.ref_parent.shape[0]

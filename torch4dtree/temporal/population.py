@@ -56,6 +56,7 @@ from ..settings import (
 from ..space.fitted import FittedModule, NotFittedError
 from ..space.pca import TreePCA
 from ..trees.aligned import AlignedTrees, slot_weights
+from ..trees.prepare import RankedTree, prepare_tree
 from ..trees.registration import RELATIVE_LP_SCALE, TreeRegistration
 from ..trees.structures import Trees, TreeSequence
 from .spatiotemporal import (
@@ -98,7 +99,8 @@ class SequenceEncoding(NamedTuple):
 class UnionLayout(NamedTuple):
     """The union layout of :meth:`Population.fit` (``N`` plants, ``S`` slots).
 
-    * ``movs``: the moving plants in union order; ``union``: the union representative (one tree, ``S`` branches).
+    * ``movs``: the moving plants in union order; ``union``: the union representative (one tree, ``S`` branches),
+      a :class:`RankedTree` with node ranks (``rank``, ``nodes`` positions).
     * ``regs``: each plant's registration onto the union representative as it was at its turn.
     * ``targets``: per plant (the reference first, then ``movs``), the layout slot of each of its slots (``-1``:
       dropped by the bound).
@@ -123,6 +125,23 @@ def cross_registration(trees: Trees, reference: Trees, lam: tuple[float, float, 
     picklable."""
     return registration.register(trees, reference, lam, rotation, positions=cross.positions,
                                  order_tol=cross.order_tol, lp_relative=False, symmetric=False)
+
+
+def own_ranks(tree: Trees, positions: str) -> list[float] | None:
+    """``tree``'s children's node ranks on its own branches (``positions`` ``"rank"`` or ``"nodes"``), ``None`` for
+    the other positions (which do not count a parent's other children)."""
+    if positions not in ("rank", "nodes"):
+        return None
+    return prepare_tree(tree, (1.0, 1.0, 1.0), positions).s.tolist()
+
+
+def ranked(union: Trees, ranks: Sequence[float] | None, positions: str) -> Trees:
+    """The one-tree ``union`` compared with the node ``ranks`` its branches had on the plants they came from
+    (:class:`RankedTree`; docs/method.md §3), or as it is where ``ranks`` is ``None``."""
+    if ranks is None:
+        return union
+    return RankedTree(union.points, union.parent, union.s, union.num_branches, union.label,
+                      torch.as_tensor(list(ranks), dtype=torch.float64, device=union.points.device), positions)
 
 
 def transform_sequence(population: Population, sequence: TreeSequence) -> SequenceEncoding:
@@ -153,7 +172,9 @@ class Population(FittedModule):
             the union representative whatever the number of plants.
 
     Fitted buffers: ``ref_points (S, T, d)``, ``ref_parent (S,)``, ``ref_s (S,)`` (the union representative,
-    module doc step 3: one branch per layout slot, in slot order), ``trajectories (N, n_t, k)``,
+    module doc step 3: one branch per layout slot, in slot order), ``ref_ranks (S,)`` (its branches' node ranks on
+    the plants they came from, what a plant registered onto it is compared with; empty unless ``cross.positions``
+    is ``"rank"`` or ``"nodes"``), ``trajectories (N, n_t, k)``,
     ``time_spans (N, 2)`` (first and last frame time of each training 4D tree); the tree PCA is the submodule
     ``pca``. ``lambdas_`` (the effective weights), ``cross_lambdas_`` (the cross registrations' effective weights),
     ``names_``, ``report_`` travel in the extra state.
@@ -166,7 +187,7 @@ class Population(FittedModule):
         torch.Size([2, 4])
     """
 
-    _fitted_buffers = ("ref_points", "ref_parent", "ref_s", "trajectories", "time_spans")
+    _fitted_buffers = ("ref_points", "ref_parent", "ref_s", "ref_ranks", "trajectories", "time_spans")
 
     def __init__(self, lambdas: Sequence[float] = (1.0, 1.0, 1.0), rotation: str = "none", n_t: int = DEFAULT_NT,
                  n_components: int | None = None, variance: float = 0.99, medoid_candidates: int = 3,
@@ -191,6 +212,7 @@ class Population(FittedModule):
         self.register_buffer("ref_points", torch.zeros(0, 0, 0))
         self.register_buffer("ref_parent", torch.zeros(0, dtype=torch.long))
         self.register_buffer("ref_s", torch.zeros(0))
+        self.register_buffer("ref_ranks", torch.zeros(0))
         self.register_buffer("trajectories", torch.zeros(0, 0, 0))
         self.register_buffer("time_spans", torch.zeros(0, 2))
         self.layout_: AlignedTrees | None = None  # the training frames (not saved)
@@ -217,6 +239,11 @@ class Population(FittedModule):
         self.names_, self.report_ = list(state["names"]), dict(state["report"])
         self.max_slots = state.get("max_slots")  # a state without it was fitted unbounded
 
+    def _load_from_state_dict(self, state_dict: dict[str, Any], prefix: str, *args: Any, **kwargs: Any) -> None:
+        # a state without ranks compares the union representative with the ranks counted on it
+        state_dict.setdefault(prefix + "ref_ranks", torch.zeros(0))
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+
     @property
     def is_fitted(self) -> bool:
         return self.trajectories.shape[0] > 0
@@ -235,11 +262,13 @@ class Population(FittedModule):
             raise NotFittedError("Population is not fitted: call fit() or load_state_dict() first")
 
     def reference_tree(self) -> Trees:
-        """The union representative (module doc, step 3) as a one-tree :class:`Trees` (float64; ``label`` = slot)."""
+        """The union representative (module doc, step 3) as a one-tree :class:`Trees` (float64; ``label`` = slot), a
+        :class:`RankedTree` with ``ref_ranks`` where the population has them."""
         S = self.ref_parent.shape[0]
         dev = self.ref_points.device
-        return Trees(self.ref_points.to(torch.float64), self.ref_parent.clone(), self.ref_s.to(torch.float64),
+        tree = Trees(self.ref_points.to(torch.float64), self.ref_parent.clone(), self.ref_s.to(torch.float64),
                      torch.tensor([S], device=dev), torch.arange(S, device=dev))
+        return ranked(tree, self.ref_ranks.tolist() if self.ref_ranks.numel() == S else None, self.cross.positions)
 
     # ------------------------------------------------------------------------ fit
     def fit(self, sequences: Sequence[TreeSequence], progress: bool = False, executor: Executor | None = None
@@ -313,8 +342,9 @@ class Population(FittedModule):
             "cross_registration": {"positions": self.cross.positions, "lambdas": list(self.cross_lambdas_),
                                    "order_tol": self.cross.order_tol},
         }
-        self._set_fitted(ref_points=union.points, ref_parent=union.parent, ref_s=union.s, trajectories=trajs,
-                         time_spans=spans)
+        ranks = union.ranks if isinstance(union, RankedTree) else torch.zeros(0)
+        self._set_fitted(ref_points=union.points, ref_parent=union.parent, ref_s=union.s, ref_ranks=ranks,
+                         trajectories=trajs, time_spans=spans)
         return self
 
     def _medoid(self, reps: list[Trees], names: list[str], lam: tuple[float, float, float], progress: bool,
@@ -349,6 +379,8 @@ class Population(FittedModule):
         """
         movs = sorted((i for i in range(len(reps)) if i != ref), key=lambda i: (float(regs[i].distance), names[i]))
         union = reps[ref]
+        # the union representative's node ranks: each branch's on the plant it came from (:func:`ranked`)
+        ranks = own_ranks(union, self.cross.positions)
         slot_parent = aseqs[ref].aligned.slot_parent.tolist()
         slot_depth = aseqs[ref].aligned.slot_depth.tolist()
         targets = {ref: list(range(len(slot_parent)))}
@@ -361,7 +393,7 @@ class Population(FittedModule):
         from tqdm.auto import tqdm
 
         def bound(keep_at_most: int) -> None:
-            nonlocal union, slot_parent, slot_depth, mass, dropped
+            nonlocal union, slot_parent, slot_depth, mass, dropped, ranks
             kept = bounded_slots(mass, slot_parent, keep_at_most)
             new = [-1] * len(slot_parent)
             for j, u in enumerate(kept):
@@ -369,6 +401,7 @@ class Population(FittedModule):
             dropped += sum(m for u, m in enumerate(mass) if new[u] < 0)
             parent = [new[slot_parent[u]] if slot_parent[u] >= 0 else -1 for u in kept]
             union = union_subset(union, kept, parent)
+            ranks = None if ranks is None else [ranks[u] for u in kept]
             slot_parent, slot_depth, mass = parent, [slot_depth[u] for u in kept], [mass[u] for u in kept]
             for i in targets:
                 targets[i] = [new[t] if t >= 0 else -1 for t in targets[i]]
@@ -376,11 +409,14 @@ class Population(FittedModule):
         grown = False
         for i in tqdm(movs, disable=not progress, desc="union layout", unit="plant"):
             if grown:
-                regs[i] = self._register_cross(reps[i], union, lam)[0]
+                regs[i] = self._register_cross(reps[i], ranked(union, ranks, self.cross.positions), lam)[0]
             gamma, rot = regs[i].gamma.to(torch.float64), regs[i].rotation.to(torch.float64)
             S_u = len(slot_parent)
             targets[i] = open_slots(aseqs[i], regs[i].matches, slot_parent, slot_depth)
             union = grow_union(union, aseqs[i], targets[i], slot_parent, gamma, rot)
+            if ranks is not None and len(slot_parent) > S_u:
+                mine, opener = own_ranks(reps[i], self.cross.positions), {u: k for k, u in enumerate(targets[i])}
+                ranks = ranks + [mine[opener[u]] for u in range(S_u, len(slot_parent))]
             grown |= len(slot_parent) > S_u
             opened += len(slot_parent) - S_u
             mass += [0.0] * (len(slot_parent) - S_u)
@@ -391,7 +427,8 @@ class Population(FittedModule):
         if self.max_slots is not None and len(slot_parent) > self.max_slots:
             bound(self.max_slots)
         total = sum(mass) + dropped
-        return UnionLayout(movs, union, regs, [targets[i] for i in [ref] + movs], slot_parent, slot_depth, opened,
+        return UnionLayout(movs, ranked(union, ranks, self.cross.positions), regs, [targets[i] for i in [ref] + movs],
+                           slot_parent, slot_depth, opened,
                            dropped / total if total > 0 else 0.0)
 
     # ------------------------------------------------------------------------ transform

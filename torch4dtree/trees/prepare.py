@@ -23,7 +23,7 @@ from .matching import order_groups
 from .structures import Trees
 
 __all__ = ["AXIL_OFFSET", "AXIS_CARRIES", "AXIS_MIN_WEIGHT", "MIN_LENGTH", "NODE_POWER", "NODE_SIGNIFICANT",
-           "PreparedTree", "RANK_NODE_TOL", "RANK_SIGNIFICANT", "child_positions", "prepare_tree"]
+           "PreparedTree", "RANK_NODE_TOL", "RANK_SIGNIFICANT", "RankedTree", "child_positions", "prepare_tree"]
 
 # floor of a length used as a divisor: a zero-length branch gives finite positions instead of nan
 MIN_LENGTH = 1e-12
@@ -42,6 +42,39 @@ NODE_POWER = 4.0
 AXIS_CARRIES = 1.5
 AXIL_OFFSET = 0.5
 AXIS_MIN_WEIGHT = 0.5
+
+
+@dataclass(frozen=True, eq=False)
+class RankedTree(Trees):
+    """A one-tree :class:`Trees` whose children's node ranks are given: ``ranks (N,)`` for ``positions``
+    ``ranks_of`` (``"rank"`` or ``"nodes"``), used by :func:`prepare_tree` instead of the ranks of its own branches.
+
+    Why: a union representative (docs/method.md §5) carries the organs of several plants at each node, so ranks
+    counted on it shift every organ above an extra one; the ranks its branches had on the plants they came from are
+    those a plant registered onto it has on its own tree. A tree derived from it (``resample``, ``to``) is a plain
+    :class:`Trees` again.
+
+    Example (a stem with two leaves; the upper one given rank 2, a node being missing on this tree):
+        >>> z = torch.linspace(0, 1, 4, dtype=torch.float64)[:, None]
+        >>> stem, leaf = torch.cat([0 * z, 0 * z, 9 * z], 1), torch.cat([2 * z, 0 * z, 3 + 0 * z], 1)
+        >>> t = Trees.from_branches([[stem, leaf, leaf + torch.tensor([0.0, 0.0, 3.0])]], [[-1, 0, 0]], T=8,
+        ...                         dtype=torch.float64)
+        >>> ranks = torch.tensor([0.0, 0.0, 2.0], dtype=torch.float64)
+        >>> given = RankedTree(t.points, t.parent, t.s, t.num_branches, t.label, ranks, "nodes")
+        >>> prepare_tree(t, (1, 1, 1), "nodes").s.round(1).tolist(), prepare_tree(given, (1, 1, 1), "nodes").s.tolist()
+        ([0.0, 0.0, 1.0], [0.0, 0.0, 2.0])
+    """
+
+    ranks: Tensor
+    ranks_of: str
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.num_trees != 1 or tuple(self.ranks.shape) != (self.points.shape[0],):
+            raise ValueError(f"a RankedTree is one tree with one rank a branch, got {self.num_trees} tree(s), "
+                             f"{self.points.shape[0]} branches and ranks of shape {tuple(self.ranks.shape)}")
+        if self.ranks_of not in ("rank", "nodes"):
+            raise ValueError(f"ranks_of must be 'rank' or 'nodes', got {self.ranks_of!r}")
 
 
 @dataclass
@@ -100,7 +133,9 @@ def prepare_tree(tree: Trees, lambdas: Lambdas, positions: str = "warped") -> Pr
         for i, p in enumerate(parent):
             if p >= 0:
                 s[i] = np.interp(s[i], grid, arc[p]) / max(float(arc[p, -1]), MIN_LENGTH)
-        if positions in ("rank", "nodes"):
+        if isinstance(tree, RankedTree) and tree.ranks_of == positions:
+            s = tree.ranks.detach().cpu().to(torch.float64).numpy().copy()
+        elif positions in ("rank", "nodes"):
             s = _node_ranks(s, parent, children, lengths, every_branch=positions == "nodes")
     return PreparedTree(tree.points, q, s, frac, parent, children, tree.depth.tolist(), np.sqrt(lengths),
                         np.asarray(subtree_sq_norms(lengths.tolist(), parent, lambdas)))
