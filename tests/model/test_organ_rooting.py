@@ -50,3 +50,15 @@ def test_samples_stand_where_a_training_frame_was_rooted_off_the_stem() -> None:
     last = torch.stack([rise(s.frames)[-1] for s in samples])
     assert bool((last >= MIN_RISE).all()), last.min()
     assert abs(float(model.ages[-1]) - 1.0) < 1e-12 and len(samples[0]) == 4
+
+
+def test_frames_kept_keep_their_ages_on_the_whole_period() -> None:
+    from torch4dtree.model.organ_table import plant_organs
+
+    seq = plants()[0]
+    u = seq.normalized_times().to(torch.float64)
+    organs = plant_organs(laid_down(seq, 3), u[:3])  # the last frame left out, not the time it was taken
+    stem = next(o for o in organs if o["key"] == ())
+    lengths = seq.frames.branch_lengths()[seq.frames.ptr[:3]]
+    expected = (lengths / lengths.max()).to(torch.float64)
+    assert torch.allclose(stem["growth"], expected, atol=1e-6), (stem["growth"], expected)

@@ -139,7 +139,6 @@ def plant_organs(seq: TreeSequence, ages: Tensor, registration: RegistrationSett
     glob = torch.where(identity >= 0, identity + ptr[:, None], torch.full_like(identity, -1))  # (n, S)
     slot_len = torch.where(glob >= 0, lengths[glob.clamp(min=0)], torch.zeros((), dtype=lengths.dtype))  # (n, S)
     best = slot_len.argmax(0)  # frame of each slot's largest length
-    u = seq.normalized_times().to(torch.float64)
     children: list[list[int]] = [[] for _ in range(S)]
     for k in range(1, S):
         if slot_len[:, k].max() > 0 and slot_parent[k] >= 0:
