@@ -33,6 +33,7 @@ from ..parallel import run_tasks
 from ..settings import DEFAULT_HIERARCHY, DEFAULT_T, HIERARCHIES, check_choice
 from ..trees.structures import TreeError, Trees, TreeSequence
 from .mat import read_mat_tree
+from .rooting import DEFAULT_ROOT, ROOTS
 from .swc import read_swc, read_swc_skeleton
 
 FRAME_SUFFIXES = (".swc", ".mat")
@@ -58,6 +59,10 @@ class LoadOptions:
             :data:`~torch4dtree.settings.HIERARCHIES` (docs/method.md §2).
         joint_hierarchy: in a sequence of SWC frames, main branches chosen to agree over time
             (:func:`~torch4dtree.trees.growth.consistent_frames`).
+        root: where an SWC skeleton is rooted, one of :data:`~torch4dtree.io.rooting.ROOTS`: ``"auto"`` (default)
+            a plant's stem base, with a warning, where the file roots it at a leaf tip hanging below it (a soma or a
+            branching root is kept); ``"base"`` the stem base always; ``"file"`` the file's own root
+            (:mod:`torch4dtree.io.rooting`). ``.mat`` trees keep theirs.
 
     Example:
         >>> LoadOptions(T=16).hierarchy
@@ -76,9 +81,11 @@ class LoadOptions:
     dtype: torch.dtype = torch.float32
     hierarchy: str = DEFAULT_HIERARCHY
     joint_hierarchy: bool = True
+    root: str = DEFAULT_ROOT
 
     def __post_init__(self) -> None:
         check_choice("hierarchy", self.hierarchy, HIERARCHIES)
+        check_choice("root", self.root, ROOTS)
 
 
 @dataclass
@@ -106,7 +113,7 @@ def read_tree(path: str | Path, options: LoadOptions | None = None) -> Trees | N
         raise DatasetError(f"{path}: no such file")
     if path.suffix.lower() == ".swc":
         tree = read_swc(path, T=o.T, max_layers=o.max_layers, min_branch_length=o.min_branch_length,
-                        labels_from_type=o.labels_from_type, repair=o.repair, hierarchy=o.hierarchy)
+                        labels_from_type=o.labels_from_type, repair=o.repair, hierarchy=o.hierarchy, root=o.root)
     elif path.suffix.lower() == ".mat":
         tree = read_mat_tree(path, T=o.T)
     else:
@@ -236,7 +243,7 @@ def _read_swc_sequence(folder: Path, pairs: list[tuple[Path, float]], o: LoadOpt
     for path, _ in pairs:
         if progress:
             progress(path.name)
-        sk = read_swc_skeleton(path, o.repair)
+        sk = read_swc_skeleton(path, o.repair, o.root)
         skeletons.append((sk.xyz, sk.parent, sk.types if o.labels_from_type else None))
         ids.append(sk.ids)
     # built as read_tree builds a single file (float32, then cast), so the numbers match it where the hierarchy does

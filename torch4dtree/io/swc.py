@@ -14,6 +14,7 @@ from ..settings import DEFAULT_HIERARCHY, DEFAULT_T
 from ..trees.skeleton import repair_skeleton, skeleton_to_trees, trees_to_skeleton, validate_skeleton
 from ..trees.structures import TreeError, Trees
 from .files import write_text_safely
+from .rooting import DEFAULT_ROOT, choose_root, reroot
 
 
 class SWCError(TreeError):
@@ -37,12 +38,18 @@ class Skeleton:
     source: str
 
 
-def read_swc_skeleton(path: str | Path, repair: bool = False) -> Skeleton:
+def read_swc_skeleton(path: str | Path, repair: bool = False, root: str = DEFAULT_ROOT) -> Skeleton:
     """Parse and validate an SWC file (one root, known parents, no cycles, finite numbers).
 
     With ``repair``, cycles and parts cut off from the root are mended (see
     :func:`~torch4dtree.trees.skeleton.repair_skeleton`) with a warning instead of an error: one
     published Pheno4D file (tomato_1, March 25) needs it.
+
+    ``root`` (one of :data:`~torch4dtree.io.rooting.ROOTS`) says where the skeleton is rooted: ``"file"`` the
+    file's own root; ``"base"`` a plant's stem base; ``"auto"`` (default) the stem base unless the file is rooted
+    at a soma (type 1) or a branching node, with a warning when it moves (:mod:`torch4dtree.io.rooting`): a scan
+    rooted at its lowest node is rooted at a leaf tip when a leaf hangs below the stem base. Only parent links
+    change; node order, ids, types and radii are the file's.
 
     Example:
         >>> import tempfile
@@ -52,6 +59,16 @@ def read_swc_skeleton(path: str | Path, repair: bool = False) -> Skeleton:
         >>> sk = read_swc_skeleton(path)
         >>> sk.parent.tolist(), sk.types.tolist()
         ([-1, 0, 1, 1], [0, 0, 0, 3])
+        >>> _ = path.write_text("1 0 4 0 -1 1 -1\\n2 0 1 0 6 1 1\\n3 0 0 0 5 1 2\\n4 0 0 0 0 1 3\\n5 0 0 0 10 1 3\\n")
+        >>> read_swc_skeleton(path, root="file").parent.tolist()  # rooted at a leaf tip hanging below the stem
+        [-1, 0, 1, 2, 2]
+        >>> import warnings
+        >>> with warnings.catch_warnings(record=True) as caught:
+        ...     warnings.simplefilter("always")
+        ...     read_swc_skeleton(path).parent.tolist()  # rooted at the stem base, node 4
+        [1, 2, 3, -1, 2]
+        >>> "instead of the file's root, node 1" in str(caught[0].message)
+        True
     """
     path = Path(path)
     rows: list[tuple[int, int, float, float, float, float, int]] = []
@@ -101,7 +118,13 @@ def read_swc_skeleton(path: str | Path, repair: bool = False) -> Skeleton:
         parent, messages = repair_skeleton(xyz, parent, ids)
         for m in messages:
             warnings.warn(f"{path}: repaired: {m}", stacklevel=2)
-    return Skeleton(xyz, parent, ids, np.array([r[1] for r in rows]), np.array([r[5] for r in rows]), str(path))
+    types = np.array([r[1] for r in rows])
+    node, why = choose_root(xyz, parent, types, root, str(path), ids)
+    if parent[node] != -1:
+        parent = reroot(parent, node)
+    if why and root == "auto":
+        warnings.warn(why, stacklevel=2)
+    return Skeleton(xyz, parent, ids, types, np.array([r[5] for r in rows]), str(path))
 
 
 def read_swc(
@@ -113,13 +136,15 @@ def read_swc(
     repair: bool = False,
     main_path: Sequence[int] | None = None,
     hierarchy: str = DEFAULT_HIERARCHY,
+    root: str = DEFAULT_ROOT,
 ) -> Trees:
     """Read an SWC file as a single-tree :class:`Trees` (branch hierarchy by the ``hierarchy`` rule, docs/method.md §2;
     see :mod:`torch4dtree.trees.skeleton`).
 
     With ``labels_from_type`` the type column holds branch identities (as the synthetic plants
     write them) and becomes :attr:`Trees.label`. ``main_path`` names the main branch explicitly as
-    the file's node ids from the root (default: chosen by the rule).
+    the file's node ids from the root (default: chosen by the rule); the tree is then rooted at its first node.
+    ``root``: where the skeleton is rooted when ``main_path`` is not given (:func:`read_swc_skeleton`).
 
     Example:
         >>> import tempfile
@@ -130,16 +155,19 @@ def read_swc(
         >>> tree.parent.tolist(), tree.label.tolist()
         ([-1, 0], [0, 3])
     """
-    sk = read_swc_skeleton(path, repair)
+    sk = read_swc_skeleton(path, repair, "file" if main_path is not None else root)
     path_index = None
+    parent = sk.parent
     if main_path is not None:
         index = {int(nid): i for i, nid in enumerate(sk.ids.tolist())}
         missing = [nid for nid in main_path if int(nid) not in index]
         if missing:
             raise SWCError(f"{path}: the main path names node {missing[0]}, which is not in the file")
         path_index = [index[int(nid)] for nid in main_path]
+        if path_index and parent[path_index[0]] != -1:
+            parent = reroot(parent, path_index[0])
     return skeleton_to_trees(
-        sk.xyz, sk.parent, T=T, max_layers=max_layers, min_branch_length=min_branch_length, main_path=path_index,
+        sk.xyz, parent, T=T, max_layers=max_layers, min_branch_length=min_branch_length, main_path=path_index,
         node_labels=sk.types if labels_from_type else None, where=str(path), ids=sk.ids, hierarchy=hierarchy,
     )
 
