@@ -21,6 +21,8 @@ the two roots and keeps every edge, node and attribute.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from ..settings import check_choice
@@ -93,8 +95,9 @@ def base_candidates(xyz: np.ndarray, parent: np.ndarray) -> np.ndarray:
 
 
 def stem_base(xyz: np.ndarray, parent: np.ndarray, where: str = "skeleton") -> tuple[int, float, float]:
-    """The stem base by the module's rule: ``(node index, its main branch's rise, the file root's rise)``; the
-    index is the current root's when no candidate qualifies.
+    """The stem base by the module's rule: ``(node index, its main branch's rise, the current root's rise)``; the
+    index is the current root's when no candidate qualifies (the rises are then ``nan`` when no other tip lies
+    in the band: nothing was measured).
 
     Example:
         >>> xyz = np.array([[0, 0, 0], [0, 0, 5], [0, 0, 10], [1, 0, 6], [4, 0, -1]], dtype=float)
@@ -108,13 +111,14 @@ def stem_base(xyz: np.ndarray, parent: np.ndarray, where: str = "skeleton") -> t
         raise TreeError(f"{where}: rooting at the stem base needs 3D points (z up), got shape {tuple(xyz.shape)}")
     order = validate_skeleton(xyz, parent, where)
     root = int(order[0])
+    candidates = [c for c in base_candidates(xyz, parent).tolist() if c != root]
+    if not candidates:  # the usual case, decided without resolving a hierarchy
+        return root, math.nan, math.nan
     rise = main_branch_rise(xyz, parent, where)
     best, best_rise = root, rise
     if rise + RISE_MARGIN > 1.0:  # no rise exceeds 1: nothing can beat this root by the margin
         return best, best_rise, rise
-    for c in base_candidates(xyz, parent).tolist():
-        if c == root:
-            continue
+    for c in candidates:
         r = main_branch_rise(xyz, reroot(parent, c), where)
         if r > best_rise:
             best, best_rise = c, r
