@@ -121,6 +121,8 @@ def test_reroot_keeps_edges_and_fails_clearly():
         LoadOptions(root="lowest")
     with pytest.raises(TreeError, match="3D points"):
         stem_base(np.zeros((3, 2)), np.array([-1, 0, 1]))
+    flat = np.array([[0.0, 0, 0], [1, 0, 0], [2, 0, 0], [1, 1, 0]])  # drawn flat: nothing rises, the root stays
+    assert stem_base(flat, np.array([-1, 0, 1, 1]))[0] == 0
 
 
 @pytest.mark.parametrize("text, message", [

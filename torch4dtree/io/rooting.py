@@ -36,6 +36,9 @@ UP_AXIS = 2
 # candidate stem bases: tips at most this share of the plant's height above its lowest node (the stem bases of the
 # misrooted Pheno4D frames sit 0.6-5.5 % above the hanging leaf tip; docs/experiments.md)
 BASE_BAND = 0.1
+# at most this many candidates, the lowest (a scan's web on the pot surface gives 19 on Pheno4D): each costs one
+# hierarchy resolution, and a skeleton drawn flat must not cost one per tip
+MAX_CANDIDATES = 32
 # a stem base's main branch climbs at least this steeply (chord about 44 degrees above the horizontal); the stem
 # bases found on Pheno4D rise 0.88-0.99
 BASE_RISE = 0.7
@@ -84,14 +87,16 @@ def main_branch_rise(xyz: np.ndarray, parent: np.ndarray, where: str = "skeleton
 
 def base_candidates(xyz: np.ndarray, parent: np.ndarray) -> np.ndarray:
     """Node indices of the tips (one neighbour) at most :data:`BASE_BAND` of the height above the lowest node,
-    lowest first."""
+    lowest first, at most :data:`MAX_CANDIDATES`; none in a skeleton without height (nothing rises there)."""
     n = len(parent)
     linked = parent >= 0
     degree = np.bincount(parent[linked], minlength=n) + linked
     z = xyz[:, UP_AXIS]
-    low = z.min() + BASE_BAND * (z.max() - z.min())
-    tips = np.nonzero((degree == 1) & (z <= low))[0]
-    return tips[np.argsort(z[tips], kind="stable")]
+    height = float(z.max() - z.min())
+    if not height > 0:
+        return np.zeros(0, dtype=np.int64)
+    tips = np.nonzero((degree == 1) & (z <= z.min() + BASE_BAND * height))[0]
+    return tips[np.argsort(z[tips], kind="stable")][:MAX_CANDIDATES]
 
 
 def stem_base(xyz: np.ndarray, parent: np.ndarray, where: str = "skeleton") -> tuple[int, float, float]:
