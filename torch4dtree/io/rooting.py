@@ -42,7 +42,7 @@ MAX_CANDIDATES = 32
 # a stem base's main branch climbs at least this steeply (chord about 44 degrees above the horizontal); the stem
 # bases found on Pheno4D rise 0.88-0.99
 BASE_RISE = 0.7
-# and at least this much more steeply than the file root's: on Pheno4D a misrooted frame's stem base gains 0.57-0.98,
+# and at least this much more steeply than the file root's: on Pheno4D a misrooted frame's stem base gains 0.56-0.99,
 # while the other low tips of well-rooted frames gain at most 0.10 (spurs beside the base)
 RISE_MARGIN = 0.4
 # the hierarchy whose main branch the rule measures: fixed, so that every hierarchy sees the same root
