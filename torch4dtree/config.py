@@ -21,10 +21,12 @@ from .settings import (
     DEFAULT_MODEL,
     DEFAULT_NT,
     DEFAULT_POSITIONS,
+    DEFAULT_ROOT,
     DEFAULT_T,
     HIERARCHIES,
     MODELS,
     POSITIONS,
+    ROOTS,
     ROTATIONS,
     CrossSettings,
     ModelSettings,
@@ -40,7 +42,7 @@ from .settings import (
 )
 
 # the settings that decide how files become trees (the fields of io.LoadOptions that a config sets)
-LOAD_SETTINGS = ("T", "max_layers", "min_branch_length", "repair", "hierarchy", "joint_hierarchy")
+LOAD_SETTINGS = ("T", "max_layers", "min_branch_length", "repair", "hierarchy", "joint_hierarchy", "root")
 
 
 @dataclass
@@ -71,6 +73,7 @@ class Config:
     repair: bool = False
     hierarchy: str = DEFAULT_HIERARCHY  # skeleton -> branches rule (torch4dtree.trees.skeleton)
     joint_hierarchy: bool = True  # SWC sequences: main branches that agree over time (torch4dtree.trees.growth)
+    root: str = DEFAULT_ROOT  # where an SWC skeleton is rooted (torch4dtree.io.rooting)
     rotation: str = "none"
     lambdas: tuple[float, float, float] = (1.0, 1.0, 1.0)  # (lm, ls, lp)
     neighbourhood: int = 4  # DP slopes up to 4: fastest and most cycle-consistent on Pheno4D at T = 64
@@ -107,6 +110,7 @@ class Config:
     def __post_init__(self) -> None:
         check_at_least("T", self.T, 2)
         check_choice("hierarchy", self.hierarchy, HIERARCHIES)
+        check_choice("root", self.root, ROOTS)
         check_choice("rotation", self.rotation, ROTATIONS)
         self.lambdas = check_lambdas(self.lambdas)
         check_choice("positions", self.positions, POSITIONS)

@@ -24,7 +24,7 @@ from typing import Any
 
 __all__ = [
     "CROSS_LP", "CROSS_ORDER_TOL", "CROSS_POSITIONS", "DEFAULT_NT", "DEFAULT_POSITIONS", "DEFAULT_T",
-    "DEFAULT_HIERARCHY",
+    "DEFAULT_HIERARCHY", "DEFAULT_ROOT", "ROOTS",
     "DEFAULT_MODEL", "FALLBACK_ROTATION", "HIERARCHIES", "MODELS", "ORDER_TOL", "POSITIONS", "ROTATIONS",
     "TEMPORAL_BACKENDS", "TEMPORAL_NEIGHBOURHOOD", "TEMPORAL_REFINE", "TIME_WEIGHT", "WITHIN_LAMBDAS", "CrossSettings",
     "ModelSettings", "OrganSettings", "RegistrationSettings", "TemporalSettings", "check_at_least", "check_choice",
@@ -41,6 +41,10 @@ HIERARCHIES = ("straightest", "heaviest", "longest", "continuation")
 # the default rule; "continuation" (straightness weighed with what each child carries) is an option whose gain on
 # woody trees is not yet clear across plant sets (docs/experiments.md)
 DEFAULT_HIERARCHY = "straightest"
+# where an SWC skeleton is rooted: "auto" a plant's stem base where the file roots it at a leaf tip hanging below
+# it, "base" the stem base always, "file" the file's own root (docs/method.md §6)
+ROOTS = ("auto", "base", "file")
+DEFAULT_ROOT = "auto"
 
 DEFAULT_T = 64  # points per branch
 DEFAULT_POSITIONS = "rank"  # pair registrations

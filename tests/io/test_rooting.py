@@ -150,3 +150,27 @@ def test_pheno4d_frames_rooted_at_a_hanging_leaf_are_read_at_the_stem_base():
     main = seq.frames.points[seq.frames.ptr[:-1]]
     chord = main[:, -1] - main[:, 0]
     assert (chord[:, 2] / chord.norm(dim=-1) > 0.8).all()  # every frame's main branch is the stem
+
+
+def test_the_root_choice_reaches_the_config_and_the_command_line(tmp_path, capsys):
+    import json
+
+    from torch4dtree.cli import main
+    from torch4dtree.config import Config
+
+    xyz, parent = plant()
+    tip = len(parent) - 11
+    n = len(parent)
+    path = write_skeleton(tmp_path / "leaf_rooted.swc", xyz, reroot(parent, tip), np.arange(1, n + 1),
+                          np.zeros(n, int), np.ones(n))
+    assert Config(root="file").load_options().root == "file" and Config().load_options().root == "auto"
+    with pytest.raises(TreeError, match="root must be one of"):
+        Config(root="soma")
+    heights = {}
+    for flag in ([], ["--root", "file"]):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            assert main(["info", str(path), "--T", "16", "--json", *flag]) == 0
+        heights[bool(flag)] = json.loads(capsys.readouterr().out)
+    # rooted at the base the main branch is the stem; at the hanging tip it is the leaf, so the outputs differ
+    assert heights[False] != heights[True]

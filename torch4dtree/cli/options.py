@@ -12,7 +12,7 @@ from contextlib import AbstractContextManager, nullcontext
 from pathlib import Path
 
 from ..config import Config, load_config
-from ..settings import HIERARCHIES, ROTATIONS
+from ..settings import HIERARCHIES, ROOTS, ROTATIONS
 
 
 class UsageError(ValueError):
@@ -87,6 +87,9 @@ def add_config_arguments(parser: argparse.ArgumentParser, registration: bool = F
     group.add_argument("--per-frame-hierarchy", dest="joint_hierarchy", action="store_const", const=False,
                        default=None, help="in SWC sequences, apply the rule to each frame alone (default: each "
                        "frame's main branch is chosen to agree with the next frame's)")
+    group.add_argument("--root", choices=ROOTS, default=None,
+                       help=f"where an SWC skeleton is rooted (default: {Config.root}: the stem base where the file "
+                            "roots a plant at a leaf tip hanging below it, with a warning; file: the file's root)")
     if registration:
         group.add_argument("--rotation", choices=ROTATIONS, default=None,
                            help=f"global rotation to optimise (default: {Config.rotation}, the scans share a frame)")

@@ -25,12 +25,10 @@ import math
 
 import numpy as np
 
-from ..settings import check_choice
+from ..settings import DEFAULT_ROOT, ROOTS, check_choice
 from ..trees.skeleton import follow_continuations, resolve_branch_points, validate_skeleton
 from ..trees.structures import TreeError
 
-ROOTS = ("auto", "base", "file")
-DEFAULT_ROOT = "auto"
 # the vertical axis of a plant scan (Pheno4D and the simulators: millimetres, z up)
 UP_AXIS = 2
 # candidate stem bases: tips at most this share of the plant's height above its lowest node (the stem bases of the

@@ -217,8 +217,9 @@ def _point_down(xyz: np.ndarray, parent: np.ndarray, children: list[list[int]], 
         if len(children[c]) == 1:
             c = children[c][0]
             continue
+        # each child's walk is the walk on through it: return the chosen one's end, never walk it twice
         ends = {k: _point_down(xyz, parent, children, edge, k, left, axis) for k in children[c]}
-        c = min(ends, key=lambda k: _angle(axis, ends[k] - xyz[c]))
+        return ends[min(ends, key=lambda k: _angle(axis, ends[k] - xyz[c]))]
     p = parent[c]
     return xyz[p] + (xyz[c] - xyz[p]) * (left / edge[c])
 
