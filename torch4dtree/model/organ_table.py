@@ -33,6 +33,8 @@ UP = 2
 # an organ first seen in a frame emerged at an unknown time since the frame before: the k-th organ of a plant at the
 # share frac(k x this) of that interval (the golden ratio's conjugate spreads the shares evenly over [0, 1))
 EMERGENCE_STEP = (math.sqrt(5.0) - 1.0) / 2.0
+# frame ages this close to evenly spaced ones are evenly spaced (times stored in float32 round them)
+EVEN_AGES_TOL = 1e-6
 # a main branch rises from its root: a frame whose main branch's chord climbs less than this share of its length
 # (about 20 degrees above the horizontal) is rooted off the stem, at a drooping leaf tip that hangs below the stem base
 # (a skeleton's root is its lowest node), so its hierarchy names other organs than the plant's other frames
@@ -215,15 +217,19 @@ def frame_ages(sequences: Sequence[TreeSequence], n_ages: int) -> Tensor:
         >>> frames = Trees(torch.zeros(3, 4, 3), -one, torch.zeros(3), one, -one)
         >>> frame_ages([TreeSequence(frames, torch.tensor([0.0, 3.0, 4.0]))], 3).tolist()
         [0.0, 0.75, 1.0]
-        >>> frame_ages([TreeSequence(frames, torch.tensor([0.0, 3.0, 4.0]))], 4).tolist()
-        [0.0, 0.3333333333333333, 0.6666666666666666, 1.0]
+        >>> frame_ages([TreeSequence(frames, torch.tensor([0.0, 3.0, 4.0]))], 4).round(decimals=4).tolist()
+        [0.0, 0.3333, 0.6667, 1.0]
     """
     even = torch.linspace(0, 1, n_ages, dtype=torch.float64)
     if not sequences or any(len(seq) != n_ages for seq in sequences):
         return even
-    ages = torch.stack([seq.normalized_times().to(torch.float64) for seq in sequences]).median(0).values
+    times = [seq.times.to(torch.float64) for seq in sequences]
+    ages = torch.stack([(t - t[0]) / (t[-1] - t[0]).clamp_min(torch.finfo(t.dtype).tiny) for t in times])
+    ages = ages.median(0).values
     ages[0], ages[-1] = 0.0, 1.0
-    return ages if bool((ages.diff() > 0).all()) else even
+    if not bool((ages.diff() > 0).all()) or torch.allclose(ages, even, rtol=0.0, atol=EVEN_AGES_TOL):
+        return even
+    return ages
 
 
 def organ_table(sequences: Sequence[TreeSequence], n_ages: int, registration: RegistrationSettings | None = None
