@@ -321,7 +321,8 @@ class OrganModel(nn.Module):
         uniforms ``u`` (:meth:`_draws`) and kernel weights ``w (P,)``. Each organ's children are read along one
         training organ's children; a switch moves to the organ standing in for it in another plant
         (:class:`~torch4dtree.model.organ_table.OrganLinks`) and goes on after the child that stands in for the last
-        one taken, so switching neither repeats nor skips an organ; it waits for a landmark to match by."""
+        one taken, so switching neither repeats nor skips an organ; it waits for a landmark to match by and for the
+        end of a node (the organs of one node, an opposite pair, come from one plant: :attr:`OrganLinks.same_node`)."""
         children, record, az, parent_az = plan
         K = len(children)
         persistence = self.settings.persistence
