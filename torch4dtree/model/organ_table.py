@@ -25,13 +25,16 @@ from torch import Tensor
 from ..settings import RegistrationSettings
 from ..trees.structures import Trees, TreeSequence
 
-__all__ = ["OrganLinks", "OrganTable", "azimuth", "organ_links", "organ_table", "plant_organs", "rooted_frames"]
+__all__ = ["OrganLinks", "OrganTable", "azimuth", "frame_ages", "organ_links", "organ_table", "plant_organs",
+           "rooted_frames"]
 
 # the vertical axis (the plants' "up"; the azimuth of an organ is its direction about it)
 UP = 2
 # an organ first seen in a frame emerged at an unknown time since the frame before: the k-th organ of a plant at the
 # share frac(k x this) of that interval (the golden ratio's conjugate spreads the shares evenly over [0, 1))
 EMERGENCE_STEP = (math.sqrt(5.0) - 1.0) / 2.0
+# frame ages this close to evenly spaced ones are evenly spaced (times stored in float32 round them)
+EVEN_AGES_TOL = 1e-6
 # a main branch rises from its root: a frame whose main branch's chord climbs less than this share of its length
 # (about 20 degrees above the horizontal) is rooted off the stem, at a drooping leaf tip that hangs below the stem base
 # (a skeleton's root is its lowest node), so its hierarchy names other organs than the plant's other frames
@@ -202,9 +205,37 @@ def _nearest_shapes(seen: Tensor, glob: Tensor, frames: Trees, lengths: Tensor, 
     return shape, frames.s[glob[nearest]]
 
 
+def frame_ages(sequences: Sequence[TreeSequence], n_ages: int) -> Tensor:
+    """``(n_ages,)`` normalised ages in ``[0, 1]`` (first 0, last 1, increasing) at which a model grows its plants:
+    the training plants' own frame ages (per frame, the median over the plants) when every plant has ``n_ages``
+    frames, else ``linspace(0, 1, n_ages)``. Plants scanned more often late in their growth (days 0, 2, ..., 10, 13,
+    15, 17, 18) are then generated at those ages, so a sample's frames hold as many organs as a real plant's.
+
+    Example:
+        >>> from torch4dtree.trees.structures import Trees
+        >>> one = torch.ones(3, dtype=torch.long)
+        >>> frames = Trees(torch.zeros(3, 4, 3), -one, torch.zeros(3), one, -one)
+        >>> frame_ages([TreeSequence(frames, torch.tensor([0.0, 3.0, 4.0]))], 3).tolist()
+        [0.0, 0.75, 1.0]
+        >>> frame_ages([TreeSequence(frames, torch.tensor([0.0, 3.0, 4.0]))], 4).round(decimals=4).tolist()
+        [0.0, 0.3333, 0.6667, 1.0]
+    """
+    even = torch.linspace(0, 1, n_ages, dtype=torch.float64)
+    if not sequences or any(len(seq) != n_ages for seq in sequences):
+        return even
+    times = [seq.times.to(torch.float64) for seq in sequences]
+    ages = torch.stack([(t - t[0]) / (t[-1] - t[0]).clamp_min(torch.finfo(t.dtype).tiny) for t in times])
+    ages = ages.median(0).values
+    ages[0], ages[-1] = 0.0, 1.0
+    if not bool((ages.diff() > 0).all()) or torch.allclose(ages, even, rtol=0.0, atol=EVEN_AGES_TOL):
+        return even
+    return ages
+
+
 def organ_table(sequences: Sequence[TreeSequence], n_ages: int, registration: RegistrationSettings | None = None
                 ) -> OrganTable:
-    """Register every 4D tree within itself and tabulate its organs by botanical key (:class:`OrganTable`).
+    """Register every 4D tree within itself and tabulate its organs by botanical key (:class:`OrganTable`), at the
+    ages :func:`frame_ages` gives.
 
     Example:
         >>> from torch4dtree.data.synthetic import synthetic_plant
@@ -212,7 +243,7 @@ def organ_table(sequences: Sequence[TreeSequence], n_ages: int, registration: Re
         >>> table.keys[0], table.growth.shape[1], bool((table.growth <= 1).all())
         ((), 3, True)
     """
-    ages = torch.linspace(0, 1, n_ages, dtype=torch.float64)
+    ages = frame_ages(sequences, n_ages)
     per_plant = [plant_organs(seq, ages, registration) for seq in sequences]
     keys = sorted({o["key"] for organs in per_plant for o in organs}, key=lambda k: (len(k), k))
     index = {k: i for i, k in enumerate(keys)}
@@ -255,6 +286,10 @@ class OrganLinks:
             for the main branch, else among the children of the parent's equivalent the nearest in ``features``.
         landmark: ``(R,)`` whether an organ is at least :data:`LANDMARK_SHARE` of its largest sibling: a small organ
             (a bud, a leaf just emerged) has many look-alikes on a parent, so it is a poor landmark to match by.
+        same_node: ``(R,)`` whether an organ attaches at the node of the sibling before it in ``kids`` (within
+            :data:`SAME_NODE_TOL` of its attachment share at every age): the second of an opposite pair of leaflets,
+            a side shoot beside its leaf. A node's organs are one unit: copying them from two plants would place them
+            at two nodes (two branch points instead of one).
     """
 
     plant: np.ndarray
@@ -264,6 +299,15 @@ class OrganLinks:
     features: np.ndarray
     equivalent: np.ndarray
     landmark: np.ndarray
+    same_node: np.ndarray
+
+    def node_start(self, of: int, rank: int) -> int:
+        """The first rank at or after ``rank`` among ``of``'s children that starts a node (not :attr:`same_node`);
+        ``n_kids[of]`` when none does."""
+        n = int(self.n_kids[of])
+        while 0 < rank < n and self.same_node[self.kids[of, rank]]:
+            rank += 1
+        return rank
 
     def nearest_kid(self, organ: int, of: int) -> int:
         """The rank among ``of``'s children of the one nearest to organ ``organ`` in ``features`` (-1: none)."""
@@ -282,6 +326,9 @@ MATCH_CHUNK = 256
 MATCH_WEIGHTS = (6.0, 1.0, 0.5, 1.0)
 # an organ at least this share of its largest sibling's length is a landmark (OrganLinks.landmark)
 LANDMARK_SHARE = 0.1
+# two siblings attach at one node when their attachment shares differ by at most this at every age (a node's
+# organs are read from one frame of one skeleton, so theirs agree to rounding)
+SAME_NODE_TOL = 1e-6
 
 
 def organ_links(record: Tensor, key_parent: Tensor, s: Tensor, growth: Tensor, log_length: Tensor) -> OrganLinks:
@@ -350,5 +397,10 @@ def organ_links(record: Tensor, key_parent: Tensor, s: Tensor, growth: Tensor, l
     largest = np.zeros(R)
     np.maximum.at(largest, np.maximum(parent, 0), np.where(side, length, 0.0))
     landmark = ~side | (length >= LANDMARK_SHARE * largest[np.maximum(parent, 0)])
+    same_node = np.zeros(R, dtype=bool)
+    prev, nxt = kids[:, :-1], kids[:, 1:]
+    pair = nxt >= 0
+    s_np = s.numpy()
+    same_node[nxt[pair]] = (np.abs(s_np[nxt[pair]] - s_np[prev[pair]]) <= SAME_NODE_TOL).all(1)
     return OrganLinks(plant=plant, parent=parent, kids=kids, n_kids=n_kids, features=features, equivalent=equivalent,
-                      landmark=landmark)
+                      landmark=landmark, same_node=same_node)

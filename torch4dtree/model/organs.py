@@ -321,7 +321,8 @@ class OrganModel(nn.Module):
         uniforms ``u`` (:meth:`_draws`) and kernel weights ``w (P,)``. Each organ's children are read along one
         training organ's children; a switch moves to the organ standing in for it in another plant
         (:class:`~torch4dtree.model.organ_table.OrganLinks`) and goes on after the child that stands in for the last
-        one taken, so switching neither repeats nor skips an organ; it waits for a landmark to match by."""
+        one taken, so switching neither repeats nor skips an organ; it waits for a landmark to match by and for the
+        end of a node (the organs of one node, an opposite pair, come from one plant: :attr:`OrganLinks.same_node`)."""
         children, record, az, parent_az = plan
         K = len(children)
         persistence = self.settings.persistence
@@ -341,11 +342,13 @@ class OrganModel(nn.Module):
             cur, i, last = source, 0, -1
             for c in children[k]:
                 cdf = start if last < 0 else later
-                if u[3 + c] >= persistence and cdf[-1] > 0 and (last < 0 or links.landmark[last]):
+                # a switch waits for a landmark and for the end of a node (its organs come from one plant)
+                at_node = last >= 0 and i < links.n_kids[cur] and bool(links.same_node[links.kids[cur, i]])
+                if u[3 + c] >= persistence and cdf[-1] > 0 and (last < 0 or (links.landmark[last] and not at_node)):
                     q = min(int(np.searchsorted(cdf, u[3 + K + c] * cdf[-1], side="right")), len(w) - 1)
                     if int(standing[q]) != cur:
                         cur = int(standing[q])
-                        i = links.nearest_kid(last, cur) + 1 if last >= 0 else 0
+                        i = links.node_start(cur, links.nearest_kid(last, cur) + 1) if last >= 0 else 0
                 if i >= links.n_kids[cur] or i < 0:
                     break
                 last = int(links.kids[cur, i])
