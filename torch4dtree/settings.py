@@ -35,7 +35,8 @@ __all__ = [
 ROTATIONS = ("none", "vertical", "so3")
 # how two trees' matched children are compared: the parent's warp, arc length, node rank on the main branch or on every
 # branch (docs/method.md §3)
-POSITIONS = ("warped", "arclength", "rank", "nodes")
+POSITIONS = ("warped", "arclength", "rank", "nodes",
+             "closest")  # a child keeps its node rank ("rank") or its arc length, whichever is closer
 # skeleton -> branch hierarchy: which child continues a branch at a branch point (docs/method.md §2)
 HIERARCHIES = ("straightest", "heaviest", "longest", "continuation")
 # the default rule; "continuation" (straightness weighed with what each child carries) is an option whose gain on
