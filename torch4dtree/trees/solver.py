@@ -82,15 +82,15 @@ def arc_fractions(tree: PreparedTree) -> np.ndarray:
 def _arc_candidates(mov: PreparedTree, ref: PreparedTree, a: int, b: int, children: Sequence[int],
                     arc_m: np.ndarray, arc_r: np.ndarray) -> np.ndarray:
     """``(k,)``: moving branch ``a``'s ``children`` placed on reference branch ``b`` by their arc length from the
-    parent's base, on the reference children's scale of ``s``: in the reference parent's length below the main
-    branch (``s`` are fractions there), as the reference's node rank at that arc length on the main branch (linear
-    between the reference's nodes, its mean node spacing beyond them)."""
+    parent's base (``arc_m``, ``arc_r`` the trees' :func:`arc_fractions`), on the scale of the reference children's
+    ``s``: in the reference parent's length below the main branch (where ``s`` are fractions), as the reference's
+    node rank at that arc length on the main branch (linear between its nodes, its mean node spacing beyond them)."""
     x = arc_m[list(children)] * mov.sqrt_len[a] ** 2 / max(float(ref.sqrt_len[b]) ** 2, MIN_LENGTH)
     cb = ref.children[b]
     if a != 0 or not cb:
         return x
     xr, sr = arc_r[cb], ref.s[cb]
-    spacing = max(float(xr[-1]) / (float(sr[-1]) + 1.0), MIN_LENGTH)  # base to first node counts as one
+    spacing = max(float(xr[-1]) / (float(sr[-1]) + 1.0), MIN_LENGTH)  # the base to the first node counts as one
     inside = np.interp(x, xr, sr)
     return np.where(x < xr[0], sr[0] - (xr[0] - x) / spacing,
                     np.where(x > xr[-1], sr[-1] + (x - xr[-1]) / spacing, inside))
@@ -99,24 +99,29 @@ def _arc_candidates(mov: PreparedTree, ref: PreparedTree, a: int, b: int, childr
 def children_positions(mov: PreparedTree, ref: PreparedTree, a: int, b: int, sc: np.ndarray, positions: str,
                        arcs: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray:
     """``(k1, k2)``: the squared position differences of moving branch ``a``'s children (compared positions
-    ``sc (k1,)``, :func:`child_positions`) and reference branch ``b``'s, ``(sc - s_e)^2``. With ``"closest"``
-    positions (``arcs`` the two trees' :func:`arc_fractions`), the smaller of that (node ranks on the main branch,
-    fractions below) and the arc lengths' difference on the same scale: a child keeps either its node rank or its
-    arc length from the base (internodes that elongate keep ranks, axes that grow at their tip keep arc lengths)."""
+    ``sc (k1,)``, :func:`child_positions`) and reference branch ``b``'s, ``(sc - s_e)^2``.
+
+    ``"closest"`` (``arcs`` the two trees' :func:`arc_fractions`): on the main branch the smaller of the node ranks'
+    difference and the arc lengths' (as node ranks of the reference, :func:`_arc_candidates`), so an organ keeps
+    either its node rank (internodes below it elongated) or its distance from the base (the stem grew at its tip
+    while a node below it became significant); below the main branch the arc lengths' difference in the reference
+    parent's length (woody axes and a simulator's organs grow at their tip).
+    """
     s_ref = ref.s[ref.children[b]][None, :]
     d2 = (sc[:, None] - s_ref) ** 2
     if positions != "closest" or arcs is None:
         return d2
-    alt = _arc_candidates(mov, ref, a, b, mov.children[a], *arcs)
-    return np.minimum(d2, (alt[:, None] - s_ref) ** 2)
+    d2_arc = (_arc_candidates(mov, ref, a, b, mov.children[a], *arcs)[:, None] - s_ref) ** 2
+    return np.minimum(d2, d2_arc) if a == 0 else d2_arc
 
 
 def closest_positions(mov: PreparedTree, ref: PreparedTree, match: dict[int, int], compared: np.ndarray
                       ) -> np.ndarray:
-    """``(Nm,)``: the moving tree's compared positions ``compared (Nm,)`` (:func:`child_positions` on the matched
-    parents) with every matched child of a matched parent moved, for ``"closest"`` positions, to whichever of its two
-    places (``compared``, or its arc length on the partner parent's scale) is closer to its partner's ``s``: a
-    layout's distance with these positions is the cost the solver matched with (:func:`children_positions`)."""
+    """``(Nm,)``: for ``"closest"`` positions, the moving tree's compared positions ``compared (Nm,)``
+    (:func:`child_positions` on the matched parents) replaced, for every matched child of a matched parent, by the
+    place the solver compared it at (:func:`children_positions`): its arc length on the partner parent's scale below
+    the main branch; on the main branch whichever of its node rank and that is closer to its partner's. A layout's
+    distance with these positions is then the cost the solver minimised."""
     out = compared.copy()
     arc_m, arc_r = arc_fractions(mov), arc_fractions(ref)
     for a, b in match.items():
@@ -125,7 +130,7 @@ def closest_positions(mov: PreparedTree, ref: PreparedTree, match: dict[int, int
             continue
         alt = _arc_candidates(mov, ref, a, b, ca, arc_m, arc_r)
         targets = ref.s[[match[c] for c in ca]]
-        out[ca] = np.where(np.abs(alt - targets) < np.abs(out[ca] - targets), alt, out[ca])
+        out[ca] = np.where(np.abs(alt - targets) < np.abs(out[ca] - targets), alt, out[ca]) if a == 0 else alt
     return out
 
 
@@ -141,8 +146,8 @@ def solve(movs: Sequence[PreparedTree], refs: Sequence[PreparedTree], jobs: Sequ
     ``max_depth`` stops exploring pairs below that layer (their subtrees then count as unmatched): a cheap,
     approximate solve used to rank starting rotations. ``landmarks`` refits each parent's warp to its
     matched children (:func:`refit_to_children`; only with ``"warped"`` positions: otherwise a warp does not move
-    children). ``positions``: how children's places are compared (:func:`child_positions`). ``order_tol``: children's
-    matching, see :func:`match_children`.
+    children). ``positions``: how children's places are compared (:func:`child_positions`,
+    :func:`children_positions`). ``order_tol``: children's matching, see :func:`match_children`.
     """
     landmarks = landmarks and positions == "warped"
     T = movs[0].q.shape[1] + 1
