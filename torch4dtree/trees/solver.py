@@ -68,7 +68,18 @@ def rotate_rows(x: Tensor, O: Tensor) -> Tensor:
 
 def arc_fractions(tree: PreparedTree) -> np.ndarray:
     """``(N,)``: each branch's arc length from its parent's base as a fraction of the parent's length (0 for the
-    root), whatever the tree's parameterisation (``|q|^2`` is the speed)."""
+    root), whatever the tree's parameterisation (``|q|^2`` is the speed).
+
+    Example (a stem 6 long with a child at height 1.5):
+        >>> import numpy as np
+        >>> from torch4dtree import Trees
+        >>> from torch4dtree.trees.prepare import prepare_tree
+        >>> z = np.linspace(0, 1, 8)[:, None]
+        >>> tree = Trees.from_branches([[np.hstack([0 * z, 0 * z, 6 * z]), np.hstack([z, 0 * z, 1.5 + 0 * z])]],
+        ...                            [[-1, 0]], T=8)
+        >>> arc_fractions(prepare_tree(tree, (1, 1, 1), "closest")).round(3).tolist()
+        [0.0, 0.25]
+    """
     seg = tree.q.square().sum(-1).numpy() / tree.q.shape[1]
     arc = np.concatenate([np.zeros((len(tree.parent), 1)), np.cumsum(seg, axis=1)], axis=1)
     grid = np.linspace(0.0, 1.0, arc.shape[1])
@@ -106,6 +117,24 @@ def children_positions(mov: PreparedTree, ref: PreparedTree, a: int, b: int, sc:
     either its node rank (internodes below it elongated) or its distance from the base (the stem grew at its tip
     while a node below it became significant); below the main branch the arc lengths' difference in the reference
     parent's length (woody axes and a simulator's organs grow at their tip).
+
+    Example (a stem grows at its tip from 4 to 6 while a child appears at 0.5: every older child's node rank rises
+    by one, its height stays):
+        >>> import numpy as np
+        >>> from torch4dtree import Trees
+        >>> from torch4dtree.trees.prepare import prepare_tree
+        >>> z = np.linspace(0, 1, 8)[:, None]
+        >>> def plant(h, at):
+        ...     kids = [np.hstack([z, 0 * z, a + 0 * z]) for a in at]
+        ...     return Trees.from_branches([[np.hstack([0 * z, 0 * z, h * z]), *kids]], [[-1] + [0] * len(at)], T=8)
+        >>> later = prepare_tree(plant(6.0, [0.5, 1.0, 2.0, 3.0]), (1, 1, 1), "closest")
+        >>> earlier = prepare_tree(plant(4.0, [1.0, 2.0, 3.0]), (1, 1, 1), "closest")
+        >>> sc, arcs = earlier.s[earlier.children[0]], (arc_fractions(earlier), arc_fractions(later))
+        >>> own = [0, 1, 2], [1, 2, 3]  # each older child and itself in the later tree
+        >>> children_positions(earlier, later, 0, 0, sc, "rank", None)[own].round(2).tolist()
+        [0.88, 0.77, 0.67]
+        >>> children_positions(earlier, later, 0, 0, sc, "closest", arcs)[own].round(2).tolist()
+        [0.0, 0.0, 0.0]
     """
     s_ref = ref.s[ref.children[b]][None, :]
     d2 = (sc[:, None] - s_ref) ** 2
