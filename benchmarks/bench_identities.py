@@ -85,15 +85,17 @@ def run_pairs(plants: list[Path], rule: str) -> list[tuple[IdentityScores, Error
     return out
 
 
-def run_sequence(plants: list[Path], rule: str) -> list[tuple[IdentityScores, ErrorCauses]]:
-    """``read_sequence`` + ``register_sequence`` (defaults); frame ``j + 1`` is the moving tree of each pair."""
+def run_sequence(plants: list[Path], rule: str, positions: str | None = None
+                 ) -> list[tuple[IdentityScores, ErrorCauses]]:
+    """``read_sequence`` + ``register_sequence`` (defaults; ``positions`` if given); frame ``j + 1`` is the moving
+    tree of each pair."""
     opts = LoadOptions(labels_from_type=True, hierarchy=rule)
     out = []
     for plant in plants:
         loaded = read_sequence(plant, opts)
         frames = loaded.sequence.frames
         sks = [skeleton(plant / name) for name in loaded.files]
-        aligned = register_sequence(loaded.sequence)
+        aligned = register_sequence(loaded.sequence, **({"positions": positions} if positions else {}))
         ident = aligned.identity.cpu()
         for j in range(len(loaded.files) - 1):
             matches = [(b, a) for a, b in sequence_matches(ident, j)]
@@ -169,6 +171,8 @@ def main(argv: list[str] | None = None) -> int:
                     help=f"rules passed to LoadOptions (known now: {', '.join(HIERARCHIES)})")
     ap.add_argument("--modes", nargs="*", default=list(MODES), choices=MODES)
     ap.add_argument("--plants", type=int, default=5, help="plants per kind for pairs and sequence")
+    ap.add_argument("--skip-plants", type=int, default=0, help="leave out the first plants of each kind")
+    ap.add_argument("--positions", default=None, help="register_sequence's positions (default: its own)")
     ap.add_argument("--cross-root", default=None, help="folder of kind folders for cross (default: ROOT/cross)")
     ap.add_argument("--cross-plants", type=int, default=6, help="plants per kind for cross (every pair)")
     ap.add_argument("--cross-frames", type=int, nargs="*", default=[3, 6, 9], help="frame indices for cross")
@@ -193,12 +197,12 @@ def main(argv: list[str] | None = None) -> int:
                         continue
                     plants = sequence_folders(cross_root / kind)[:a.cross_plants]
                 else:
-                    plants = sequence_folders(folder)[:a.plants]
+                    plants = sequence_folders(folder)[a.skip_plants:a.skip_plants + a.plants]
                 t0 = time.perf_counter()
                 if mode == "pairs":
                     res = run_pairs(plants, rule)
                 elif mode == "sequence":
-                    res = run_sequence(plants, rule)
+                    res = run_sequence(plants, rule, a.positions)
                 else:
                     res = run_cross(plants, rule, a.cross_frames)
                 r = summarise(res, time.perf_counter() - t0)

@@ -24,7 +24,7 @@ from typing import Any
 
 __all__ = [
     "CROSS_LP", "CROSS_ORDER_TOL", "CROSS_POSITIONS", "DEFAULT_NT", "DEFAULT_POSITIONS", "DEFAULT_T",
-    "DEFAULT_HIERARCHY", "DEFAULT_ROOT", "ROOTS",
+    "DEFAULT_HIERARCHY", "DEFAULT_ROOT", "ROOTS", "SEQUENCE_POSITIONS",
     "DEFAULT_MODEL", "FALLBACK_ROTATION", "HIERARCHIES", "MODELS", "ORDER_TOL", "POSITIONS", "ROTATIONS",
     "TEMPORAL_BACKENDS", "TEMPORAL_NEIGHBOURHOOD", "TEMPORAL_REFINE", "TIME_WEIGHT", "WITHIN_LAMBDAS", "CrossSettings",
     "ModelSettings", "OrganSettings", "RegistrationSettings", "TemporalSettings", "check_at_least", "check_choice",
@@ -35,7 +35,9 @@ __all__ = [
 ROTATIONS = ("none", "vertical", "so3")
 # how two trees' matched children are compared: the parent's warp, arc length, node rank on the main branch or on every
 # branch (docs/method.md §3)
-POSITIONS = ("warped", "arclength", "rank", "nodes")
+POSITIONS = ("warped", "arclength", "rank",
+             "closest",  # main branch: the closer of node rank and arc length; below: arc length (one plant's frames)
+             "nodes")
 # skeleton -> branch hierarchy: which child continues a branch at a branch point (docs/method.md §2)
 HIERARCHIES = ("straightest", "heaviest", "longest", "continuation")
 # the default rule; "continuation" (straightness weighed with what each child carries) is an option whose gain on
@@ -48,6 +50,9 @@ DEFAULT_ROOT = "auto"
 
 DEFAULT_T = 64  # points per branch
 DEFAULT_POSITIONS = "rank"  # pair registrations
+# one plant's frames (register_sequence): an organ keeps its node rank or its arc length on the main branch, arc lengths
+# below it (docs/method.md §3): elongating internodes and axes that grow at their tip both keep identities
+SEQUENCE_POSITIONS = "closest"
 DEFAULT_NT = 32  # common time samples of a trajectory
 # the population's union layout keeps at most this many slots (the ones carrying the most of the training frames'
 # norm; docs/scaling.md): bounds the fit's features and registrations in the number of plants

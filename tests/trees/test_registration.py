@@ -526,7 +526,7 @@ def test_rotation_starts_spread_over_a_full_turn(rotation):
 # ----------------------------------------------------------------------------- positions by arc length
 
 
-@pytest.mark.parametrize("positions", ["arclength", "rank"])
+@pytest.mark.parametrize("positions", ["arclength", "rank", "closest"])
 def test_arclength_positions_ignore_parametrisation(positions):
     """A copy with every branch strongly reparameterised and siblings reordered: with children placed by arc
     length (or by node rank) the same geometry has the same positions, so every branch is found and the positions

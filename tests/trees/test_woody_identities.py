@@ -1,12 +1,15 @@
-"""Identities of a woody tree's spurs between two snapshots: ``register_trees`` with ordered matching."""
+"""Identities of a woody tree's spurs between two snapshots (``register_trees`` with ordered matching), and of organs
+along growing axes in sequence mode (``register_sequence``'s positions)."""
 
 from __future__ import annotations
 
 import numpy as np
 import torch
 
-from torch4dtree import Trees
+from torch4dtree import Trees, TreeSequence
+from torch4dtree.data import synthetic_plant
 from torch4dtree.settings import ORDER_TOL
+from torch4dtree.temporal import identity_accuracy, register_sequence
 from torch4dtree.trees import register_trees
 
 SCAFFOLD_DIR = np.array([np.sin(np.radians(50)), 0.0, np.cos(np.radians(50))])  # leaves the trunk at 50 degrees
@@ -72,3 +75,45 @@ def test_spurs_keep_their_arc_length_as_the_scaffold_grows() -> None:
 
     assert (93, 63) in organs("rank")  # the case is a real one: fractions shift the spurs by one place
     assert organs("arclength") == [(1, 1), (2, 2), (43, 43), (63, 63)]
+
+
+def _stem_plant(stem: float, organs: list[tuple[float, float, float, int]]) -> Trees:
+    """A vertical stem ``stem`` mm long carrying straight organs ``(arc length from the base, length, azimuth in
+    degrees, label)`` that leave it at 60 degrees."""
+    t = np.linspace(0.0, 1.0, 40)[:, None]
+    branches = [t * np.array([0.0, 0.0, stem])]
+    for arc, length, azimuth, _ in organs:
+        a, tilt = np.radians(azimuth), np.radians(60.0)
+        direction = np.array([np.sin(tilt) * np.cos(a), np.sin(tilt) * np.sin(a), np.cos(tilt)])
+        branches.append(np.array([0.0, 0.0, arc]) + t * length * direction)
+    return Trees.from_branches([branches], [[-1] + [0] * len(organs)], T=32, dtype=torch.float64,
+                               labels=[[1] + [o[3] for o in organs]])
+
+
+def _slot_organs(seq: TreeSequence, positions: str | None = None) -> list[tuple[int | None, ...]]:
+    """Every slot of ``register_sequence(seq)`` as its organ label in each frame (``None`` where absent)."""
+    aligned = register_sequence(seq, **({"positions": positions} if positions else {}))
+    ident = aligned.identity.tolist()
+    counts = seq.frames.num_branches.tolist()
+    labels = seq.frames.label.tolist()
+    starts = np.concatenate([[0], np.cumsum(counts)]).tolist()
+    return sorted((tuple(None if ident[j][k] < 0 else labels[starts[j] + ident[j][k]] for j in range(len(counts)))
+                   for k in range(len(ident[0]))), key=str)
+
+
+def test_sequence_positions_keep_organs_on_elongating_stems_and_apically_growing_axes() -> None:
+    """``register_sequence``'s default positions keep identities both where internodes elongate between sparse
+    frames (synthetic maize, 4 frames: node ranks stay, arc lengths from the base do not) and where an axis grows at
+    its tip while a bud low on it becomes a shoot (arc lengths stay, the node ranks of every organ above the bud
+    shift by one)."""
+    maize = synthetic_plant("maize", 4, n_frames=4, T=24, dtype=torch.float64).sequence
+    assert identity_accuracy(register_sequence(maize, positions="arclength"), maize.frames.label).sequence < 0.9
+    assert identity_accuracy(register_sequence(maize), maize.frames.label).sequence == 1.0
+    earlier = _stem_plant(100.0, [(10.0, 1.0, 90.0, 21), (30.0, 20.0, 0.0, 22), (50.0, 20.0, 120.0, 23),
+                                  (70.0, 20.0, 240.0, 24)])
+    later = _stem_plant(150.0, [(110.0, 20.0, 120.0, 26), (90.0, 20.0, 0.0, 25), (70.0, 20.0, 240.0, 24),
+                                (50.0, 20.0, 120.0, 23), (30.0, 20.0, 0.0, 22), (10.0, 20.0, 90.0, 21)])  # the
+    # organs listed top-down: the index order (a registration's fallback) is not the answer
+    axis = TreeSequence(Trees.cat([earlier, later]), torch.tensor([0.0, 1.0], dtype=torch.float64))
+    assert (22, 21) in _slot_organs(axis, "rank")  # the case is a real one: ranks shift the shoots by one
+    assert _slot_organs(axis) == [(1, 1), (21, 21), (22, 22), (23, 23), (24, 24), (None, 25), (None, 26)]

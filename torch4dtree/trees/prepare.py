@@ -135,7 +135,7 @@ def prepare_tree(tree: Trees, lambdas: Lambdas, positions: str = "warped") -> Pr
                 s[i] = np.interp(s[i], grid, arc[p]) / max(float(arc[p, -1]), MIN_LENGTH)
         if isinstance(tree, RankedTree) and tree.ranks_of == positions:
             s = tree.ranks.detach().cpu().to(torch.float64).numpy().copy()
-        elif positions in ("rank", "nodes"):
+        elif positions in ("rank", "nodes", "closest"):
             s = _node_ranks(s, parent, children, lengths, every_branch=positions == "nodes")
     return PreparedTree(tree.points, q, s, frac, parent, children, tree.depth.tolist(), np.sqrt(lengths),
                         np.asarray(subtree_sq_norms(lengths.tolist(), parent, lambdas)))
@@ -197,7 +197,7 @@ def child_positions(mov: PreparedTree, ref: PreparedTree, a: int, b: int, childr
     s_c = mov.s[list(children)]
     if positions == "arclength":
         return s_c * mov.sqrt_len[a] ** 2 / max(float(ref.sqrt_len[b]) ** 2, MIN_LENGTH)
-    if positions in ("rank", "nodes"):
+    if positions in ("rank", "nodes", "closest"):
         return s_c.copy()
     return np.interp(s_c, gamma_ab, grid)
 

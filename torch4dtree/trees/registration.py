@@ -41,7 +41,7 @@ from .aligned import AlignedTrees, Lambdas
 from .pairwise import pairwise_distances
 from .prepare import PreparedTree, child_positions, prepare_tree
 from .rotations import KEEP_STARTS, RANK_T, initial_rotations, rank_starts, search_rotations
-from .solver import Candidate, rotate_rows
+from .solver import Candidate, closest_positions, rotate_rows
 from .structures import Trees
 from .symmetry import inverse_config, solve_reversed
 
@@ -167,6 +167,8 @@ def _build_aligned(mov: PreparedTree, ref: PreparedTree, match: dict[int, int], 
         else:
             s_m[a] = np.interp(mov.frac[a], gamma[p], grid)
             cmp_m[a] = child_positions(mov, ref, p, match[p], [a], gamma[p], grid, positions)[0]
+    if positions == "closest":  # the places the solver compared matched children at
+        cmp_m = closest_positions(mov, ref, match, cmp_m)
     q = torch.zeros(2, S, M, d, dtype=dtype, device=dev)
     present = torch.zeros(2, S, dtype=torch.bool, device=dev)
     source = torch.full((2, S), -1, dtype=torch.long, device=dev)

@@ -20,10 +20,11 @@ from torch import Tensor
 from ..curves.register import DPWarp, dp_warp
 from .aligned import Lambdas
 from .matching import match_children
-from .prepare import PreparedTree, child_positions
+from .prepare import MIN_LENGTH, PreparedTree, child_positions
 from .refit import refit_to_children
 
-__all__ = ["Candidate", "LANDMARK_MIN_SHARE", "SERIAL_DP_BELOW", "rotate_rows", "solve"]
+__all__ = ["Candidate", "LANDMARK_MIN_SHARE", "SERIAL_DP_BELOW", "arc_fractions", "children_positions",
+           "closest_positions", "rotate_rows", "solve"]
 
 
 @dataclass
@@ -65,6 +66,102 @@ def rotate_rows(x: Tensor, O: Tensor) -> Tensor:
     return (x.unsqueeze(-2) * O).sum(-1)
 
 
+def arc_fractions(tree: PreparedTree) -> np.ndarray:
+    """``(N,)``: each branch's arc length from its parent's base as a fraction of the parent's length (0 for the
+    root), whatever the tree's parameterisation (``|q|^2`` is the speed).
+
+    Example (a stem 6 long with a child at height 1.5):
+        >>> import numpy as np
+        >>> from torch4dtree import Trees
+        >>> from torch4dtree.trees.prepare import prepare_tree
+        >>> z = np.linspace(0, 1, 8)[:, None]
+        >>> tree = Trees.from_branches([[np.hstack([0 * z, 0 * z, 6 * z]), np.hstack([z, 0 * z, 1.5 + 0 * z])]],
+        ...                            [[-1, 0]], T=8)
+        >>> arc_fractions(prepare_tree(tree, (1, 1, 1), "closest")).round(3).tolist()
+        [0.0, 0.25]
+    """
+    seg = tree.q.square().sum(-1).numpy() / tree.q.shape[1]
+    arc = np.concatenate([np.zeros((len(tree.parent), 1)), np.cumsum(seg, axis=1)], axis=1)
+    grid = np.linspace(0.0, 1.0, arc.shape[1])
+    out = np.zeros(len(tree.parent))
+    for i, p in enumerate(tree.parent):
+        if p >= 0:
+            out[i] = np.interp(tree.frac[i], grid, arc[p]) / max(float(arc[p, -1]), MIN_LENGTH)
+    return out
+
+
+def _arc_candidates(mov: PreparedTree, ref: PreparedTree, a: int, b: int, children: Sequence[int],
+                    arc_m: np.ndarray, arc_r: np.ndarray) -> np.ndarray:
+    """``(k,)``: moving branch ``a``'s ``children`` placed on reference branch ``b`` by their arc length from the
+    parent's base (``arc_m``, ``arc_r`` the trees' :func:`arc_fractions`), on the scale of the reference children's
+    ``s``: in the reference parent's length below the main branch (where ``s`` are fractions), as the reference's
+    node rank at that arc length on the main branch (linear between its nodes, its mean node spacing beyond them)."""
+    x = arc_m[list(children)] * mov.sqrt_len[a] ** 2 / max(float(ref.sqrt_len[b]) ** 2, MIN_LENGTH)
+    cb = ref.children[b]
+    if a != 0 or not cb:
+        return x
+    xr, sr = arc_r[cb], ref.s[cb]
+    spacing = max(float(xr[-1]) / (float(sr[-1]) + 1.0), MIN_LENGTH)  # the base to the first node counts as one
+    inside = np.interp(x, xr, sr)
+    return np.where(x < xr[0], sr[0] - (xr[0] - x) / spacing,
+                    np.where(x > xr[-1], sr[-1] + (x - xr[-1]) / spacing, inside))
+
+
+def children_positions(mov: PreparedTree, ref: PreparedTree, a: int, b: int, sc: np.ndarray, positions: str,
+                       arcs: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray:
+    """``(k1, k2)``: the squared position differences of moving branch ``a``'s children (compared positions
+    ``sc (k1,)``, :func:`child_positions`) and reference branch ``b``'s, ``(sc - s_e)^2``.
+
+    ``"closest"`` (``arcs`` the two trees' :func:`arc_fractions`): on the main branch the smaller of the node ranks'
+    difference and the arc lengths' (as node ranks of the reference, :func:`_arc_candidates`), so an organ keeps
+    either its node rank (internodes below it elongated) or its distance from the base (the stem grew at its tip
+    while a node below it became significant); below the main branch the arc lengths' difference in the reference
+    parent's length (woody axes and a simulator's organs grow at their tip).
+
+    Example (a stem grows at its tip from 4 to 6 while a child appears at 0.5: every older child's node rank rises
+    by one, its height stays):
+        >>> import numpy as np
+        >>> from torch4dtree import Trees
+        >>> from torch4dtree.trees.prepare import prepare_tree
+        >>> z = np.linspace(0, 1, 8)[:, None]
+        >>> def plant(h, at):
+        ...     kids = [np.hstack([z, 0 * z, a + 0 * z]) for a in at]
+        ...     return Trees.from_branches([[np.hstack([0 * z, 0 * z, h * z]), *kids]], [[-1] + [0] * len(at)], T=8)
+        >>> later = prepare_tree(plant(6.0, [0.5, 1.0, 2.0, 3.0]), (1, 1, 1), "closest")
+        >>> earlier = prepare_tree(plant(4.0, [1.0, 2.0, 3.0]), (1, 1, 1), "closest")
+        >>> sc, arcs = earlier.s[earlier.children[0]], (arc_fractions(earlier), arc_fractions(later))
+        >>> own = [0, 1, 2], [1, 2, 3]  # each older child and itself in the later tree
+        >>> children_positions(earlier, later, 0, 0, sc, "rank", None)[own].round(2).tolist()
+        [0.88, 0.77, 0.67]
+        >>> children_positions(earlier, later, 0, 0, sc, "closest", arcs)[own].round(2).tolist()
+        [0.0, 0.0, 0.0]
+    """
+    s_ref = ref.s[ref.children[b]][None, :]
+    d2 = (sc[:, None] - s_ref) ** 2
+    if positions != "closest" or arcs is None:
+        return d2
+    d2_arc = (_arc_candidates(mov, ref, a, b, mov.children[a], *arcs)[:, None] - s_ref) ** 2
+    return np.minimum(d2, d2_arc) if a == 0 else d2_arc
+
+
+def closest_positions(mov: PreparedTree, ref: PreparedTree, match: dict[int, int], compared: np.ndarray
+                      ) -> np.ndarray:
+    """``(Nm,)``: for ``"closest"`` positions, the moving tree's compared positions ``compared (Nm,)``
+    (:func:`child_positions` on the matched parents) replaced, for every matched child of a matched parent, by the
+    place the solver compared it at (:func:`children_positions`): its arc length on the partner parent's scale below
+    the main branch; on the main branch whichever of its node rank and that is closer to its partner's. A layout's
+    distance with these positions is then the cost the solver minimised."""
+    out = compared.copy()
+    arc_m, arc_r = arc_fractions(mov), arc_fractions(ref)
+    for a, b in match.items():
+        ca = [c for c in mov.children[a] if c in match]
+        if not ca:
+            continue
+        alt = _arc_candidates(mov, ref, a, b, ca, arc_m, arc_r)
+        targets = ref.s[[match[c] for c in ca]]
+        out[ca] = np.where(np.abs(alt - targets) < np.abs(out[ca] - targets), alt, out[ca]) if a == 0 else alt
+    return out
+
 
 def solve(movs: Sequence[PreparedTree], refs: Sequence[PreparedTree], jobs: Sequence[tuple[int, int, Tensor]],
           lambdas: Sequence[Lambdas], dp_opts: dict, prune: bool, max_depth: int | None = None,
@@ -78,17 +175,23 @@ def solve(movs: Sequence[PreparedTree], refs: Sequence[PreparedTree], jobs: Sequ
     ``max_depth`` stops exploring pairs below that layer (their subtrees then count as unmatched): a cheap,
     approximate solve used to rank starting rotations. ``landmarks`` refits each parent's warp to its
     matched children (:func:`refit_to_children`; only with ``"warped"`` positions: otherwise a warp does not move
-    children). ``positions``: how children's places are compared (:func:`child_positions`). ``order_tol``: children's
-    matching, see :func:`match_children`.
+    children). ``positions``: how children's places are compared (:func:`child_positions`,
+    :func:`children_positions`). ``order_tol``: children's matching, see :func:`match_children`.
     """
     landmarks = landmarks and positions == "warped"
     T = movs[0].q.shape[1] + 1
     grid = np.linspace(0.0, 1.0, T)
     qrot = [rotate_rows(movs[m].q, O) for m, _, O in jobs]
+    arcs: dict[int, np.ndarray] = {}
+    if positions == "closest":
+        for t in [*movs, *refs]:
+            if id(t) not in arcs:
+                arcs[id(t)] = arc_fractions(t)
     # top-down: candidate pairs per depth, one batched DP per depth
     level: list[tuple[int, int, int, float]] = [(k, 0, 0, 0.0) for k in range(len(jobs))]
     levels: list[list[tuple[int, int, int, float]]] = []
-    info: dict[tuple[int, int, int], tuple[float, np.ndarray, np.ndarray]] = {}  # -> (E, gamma, children's s')
+    # (k, a, b) -> (E, gamma, children's s', children's position costs); a level's pairs carry their position cost
+    info: dict[tuple[int, int, int], tuple[float, np.ndarray, np.ndarray, np.ndarray]] = {}
     depth = 0
     while level:
         levels.append(level)
@@ -100,20 +203,23 @@ def solve(movs: Sequence[PreparedTree], refs: Sequence[PreparedTree], jobs: Sequ
         for p, (k, a, b, sa) in enumerate(level):
             mov, ref = movs[jobs[k][0]], refs[jobs[k][1]]
             lm, ls, lp = lambdas[jobs[k][0]]
-            if depth > 0 and prune and lp * (sa - ref.s[b]) ** 2 + ls * lm * E[p] >= ls * (mov.norm[a] + ref.norm[b]):
+            if depth > 0 and prune and sa + ls * lm * E[p] >= ls * (mov.norm[a] + ref.norm[b]):
                 continue  # never better than leaving both unmatched: do not explore
             ca, cb = mov.children[a], ref.children[b]
             sc = child_positions(mov, ref, a, b, ca, gam[p], grid, positions)
-            info[(k, a, b)] = (float(E[p]), gam[p], sc)
+            pos = lp * children_positions(mov, ref, a, b, sc, positions,
+                                          (arcs[id(mov)], arcs[id(ref)]) if arcs else None)
+            info[(k, a, b)] = (float(E[p]), gam[p], sc, pos)
             if max_depth is not None and depth >= max_depth:
                 continue
-            for c, s_c in zip(ca, sc):
-                for e in cb:
+            pos_l = pos.tolist()  # python floats: fast scalar access
+            for i, c in enumerate(ca):
+                for j, e in enumerate(cb):
                     if prune:
-                        lb = lp * (s_c - ref.s[e]) ** 2 + ls * lm * (mov.sqrt_len[c] - ref.sqrt_len[e]) ** 2
+                        lb = pos_l[i][j] + ls * lm * (mov.sqrt_len[c] - ref.sqrt_len[e]) ** 2
                         if lb >= ls * (mov.norm[c] + ref.norm[e]):
                             continue
-                    nxt.append((k, c, e, float(s_c)))
+                    nxt.append((k, c, e, pos_l[i][j]))
         level = nxt
         depth += 1
     # bottom-up: assignments from the children's costs
@@ -124,7 +230,7 @@ def solve(movs: Sequence[PreparedTree], refs: Sequence[PreparedTree], jobs: Sequ
             key = (k, a, b)
             if key not in info:
                 continue
-            E, _, sc = info[key]
+            E, _, sc, pos = info[key]
             mov, ref = movs[jobs[k][0]], refs[jobs[k][1]]
             lm, ls, lp = lambdas[jobs[k][0]]
             ca, cb = mov.children[a], ref.children[b]
@@ -142,8 +248,7 @@ def solve(movs: Sequence[PreparedTree], refs: Sequence[PreparedTree], jobs: Sequ
                             sub[i, j] = ls * d_ce
                 null_mov, null_ref = ls * mov.norm[ca], ls * ref.norm[cb]
                 s_ref = ref.s[cb]
-                cost, pairs = match_children(sub + lp * (sc[:, None] - s_ref[None, :]) ** 2, null_mov, null_ref,
-                                              sc, s_ref, order_tol)
+                cost, pairs = match_children(sub + pos, null_mov, null_ref, sc, s_ref, order_tol)
                 total += cost
                 s_cost = lp * sum((sc[i] - s_ref[j]) ** 2 for i, j in pairs)  # the most a refit can save
                 if landmarks and pairs and s_cost > LANDMARK_MIN_SHARE * total:
@@ -151,7 +256,7 @@ def solve(movs: Sequence[PreparedTree], refs: Sequence[PreparedTree], jobs: Sequ
                     total, pairs, E, gam_ab, sc = refit_to_children(
                         ref_q, mov_q, info[key][1], mov.s[ca], s_ref, sub, null_mov, null_ref, pairs, total, lm,
                         lp, order_tol)
-                    info[key] = (E, gam_ab, sc)
+                    info[key] = (E, gam_ab, sc, pos)
                 assign[key] = [(ca[i], cb[j]) for i, j in pairs]
             D[key] = total
     out = []
