@@ -176,10 +176,10 @@ def _same_organ(matches: list[tuple[int, int]], organs_b: list[int], organs_a: l
 
 
 def test_default_cross_registration_keeps_organs_and_their_order(beans):
-    """The default (node ranks on the main branch and shoots, lp 100, children in their order along the parent,
-    register4d's completed candidates) matches every organ slot of three pairs to its own organ, and the main
-    branch's matched leaves keep their order up the stem; warped positions, lp 10 and any order match leaf 3 to leaf
-    6 and the like (precision 0.03 / 0.07 / 0.21 on these pairs, 1.00 with the default)."""
+    """The default (node ranks on the main branch, lp 12, children in their order along the parent) matches every
+    organ slot of three pairs to its own organ, and the main branch's matched leaves keep their order up the stem;
+    warped positions, lp 10 and any order match leaf 3 to leaf 6 and the like (precision 0.03 / 0.07 / 0.21 on these
+    pairs, 1.00 with the default)."""
     aligned, organs = beans
     old_precision = []
     for i, j in ((0, 1), (0, 2), (1, 2)):

@@ -10,18 +10,18 @@
    representatives at evenly spaced ranks of total length, ties by name; the one with the smallest sum of
    squared registered distances of all representatives onto it wins);
 3. **cross-sequence registration** onto a growing **union representative** and the **union layout** of all frames
-   (:func:`place_targets`). The union representative starts as the reference's; the other representatives are registered
-   onto it one by one, in the order of their registered distance to the reference (ties by name, so the result does not
-   depend on the input order): a branch matched to a union slot goes there, also to a slot an earlier plant opened, and
-   an unmatched one opens a slot whose branch joins the union representative (:func:`grow_union`). So a branch the
-   reference lacks opens one slot that later plants can share, not one slot per plant. These registrations use the
-   cross-sequence settings (:class:`~torch4dtree.settings.CrossSettings`: node ranks on the main branch and shoots, lp
-   100 relative, organs kept in their order along the parent by default); the layout keeps the space's metric. Until a
-   slot is opened, the batched registrations onto the reference are reused; the later ones are one call per plant. The
-   layout keeps at most ``max_slots`` slots: each slot carries the squared weighted length of the training branches
-   placed in it, and when the union has grown past ``SLOT_SLACK`` times the bound (and once at the end) only the
-   ``max_slots`` slots carrying the most are kept, closed under parents (:func:`bounded_slots`); branches in dropped
-   slots leave the layout (their share is reported);
+   (:func:`place_targets`). The union representative starts as the reference's; the other representatives are
+   registered onto it one by one, in the order of their registered distance to the reference (ties by name, so the
+   result does not depend on the input order): a branch matched to a union slot goes there, also to a slot an
+   earlier plant opened, and an unmatched one opens a slot whose branch joins the union representative
+   (:func:`grow_union`). So a branch the reference lacks opens one slot that later plants can share, not one slot
+   per plant. These registrations use the cross-sequence settings (:class:`~torch4dtree.settings.CrossSettings`:
+   node ranks, lp 12 relative, organs kept in their order along the parent by default); the layout keeps the
+   space's metric. Until a slot is opened, the batched registrations onto the reference are reused; the later
+   ones are one call per plant. The layout keeps at most ``max_slots`` slots: each slot carries the squared
+   weighted length of the training branches placed in it, and when the union has grown past ``SLOT_SLACK``
+   times the bound (and once at the end) only the ``max_slots`` slots carrying the most are kept, closed under
+   parents (:func:`bounded_slots`); branches in dropped slots leave the layout (their share is reported);
 4. a :class:`TreePCA` on all frames, and each 4D tree's **trajectory** ``(n_t, k)`` on the normalised time grid
    ``linspace(0, 1, n_t)`` between its first and last frame (its ``time_spans`` give data units back).
 
