@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import math
 
 import pytest
@@ -278,7 +279,9 @@ def test_forecast_analogue_term_follows_the_nearest_training_plant(model: FourDT
                                                                     tmp_path) -> None:
     """The analogue term weighs the training plants by the registered distance of the last observed frame to each
     at that age: a training plant's own frame is nearest to itself, and with a narrow kernel the term is that
-    plant's own later deviation from the 4D mean. A checkpoint without the term's buffer forecasts without it."""
+    plant's own later deviation from the 4D mean. Its weight and width are the fit's leave-one-out choice (the least
+    left-out error; on these three plants it may be 0, the 4D mean's term alone). A checkpoint without the term's
+    buffer forecasts without it."""
     ages = torch.tensor([0.0, 1.0, 2.5], dtype=torch.float64)
     for j, seq in enumerate(plants[:3]):
         age = float(seq.times[1] - seq.times[0])
@@ -294,9 +297,19 @@ def test_forecast_analogue_term_follows_the_nearest_training_plant(model: FourDT
     from torch4dtree.model.fourd import FORECAST_SHRINK
 
     report = model.report_["forecast"]
-    assert report["analogue"] in FORECAST_SHRINK and report["analogue"] > 0
+    table = report["loo_error"]  # the chosen width's left-out errors, per analogue weight then gain shrink
+    assert len(table) == len(FORECAST_SHRINK) and report["analogue"] in FORECAST_SHRINK
+    chosen = table[FORECAST_SHRINK.index(report["analogue"])][FORECAST_SHRINK.index(report["shrink"])]
+    assert chosen == min(min(row) for row in table), (report["analogue"], report["shrink"], table)
+    assert table[1][0] != table[0][0]  # the analogue term enters the left-out errors
     assert model.forecast_analogue.tolist() == [report["width"], report["analogue"], report["null"]]
-    # an older checkpoint (no forecast_analogue): the 4D mean plus the gains' term alone
+    # an older checkpoint (no forecast_analogue): the 4D mean plus the gains' term alone, against the model with the
+    # term on (the fit's width and null, weight 0.5 if the fit chose 0)
+    model = copy.deepcopy(model)
+    model.forecast_analogue = torch.tensor([report["width"], report["analogue"] or 0.5, report["null"]],
+                                           dtype=torch.float64)
+    seq = plants[3]
+    assert float(torch.as_tensor(_analogue_term(model, seq, 2, seq.times[2:])).abs().max()) > 1e-6
     path = tmp_path / "model.pt"
     model.save(str(path))
     raw = torch.load(path, weights_only=True)
@@ -304,7 +317,6 @@ def test_forecast_analogue_term_follows_the_nearest_training_plant(model: FourDT
     torch.save(raw, path)
     old = load(path)
     assert old.forecast_analogue.tolist() == [0.0, 0.0, 0.0]
-    seq = plants[3]
     f_old = old.forecast(seq[[0, 1]], seq.times[2:], decode=False)
     f_new = model.forecast(seq[[0, 1]], seq.times[2:], decode=False)
     assert torch.allclose(f_old.trajectory, f_new.trajectory - _analogue_term(model, seq, 2, seq.times[2:]), atol=1e-9)
@@ -361,6 +373,8 @@ def test_forecast_beats_baselines(kind: str) -> None:
 
     seqs = [p.sequence for p in synthetic_dataset(kind, plants=20, seed=3, n_frames=6, T=16)]
     m = FourDTreeModel(ModelSettings(n_t=16)).fit(seqs[:7])
+    # the leave-one-out over 7 plants keeps the analogue term (weight 0.25 or 0.5, rank / 12 or nodes / 100)
+    assert m.report_["forecast"]["analogue"] > 0, m.report_["forecast"]
     errs = {"forecast": 0.0, "last": 0.0, "mean": 0.0}
     for h in seqs[7:]:
         half = len(h) // 2

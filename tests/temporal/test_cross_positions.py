@@ -214,3 +214,18 @@ def test_register4d_keeps_the_registration_organs_at_a_large_lp(beans, monkeypat
     bug = register4d(aligned[0], aligned[1], rotation="vertical", cross=cross)
     same = _same_organ(bug.matches, organs[1], organs[0])
     assert bug.spatial_candidate == "index_order_4d" and sum(same) < 0.5 * len(same), (bug.spatial_candidate, same)
+
+
+def test_completion_pairs_a_gap_by_place():
+    """A gap with more children on one side is paired by place, not from the bottom: B's lowest leaf of a shoot
+    matched to a spur below A's lowest leaf (a 4D pair of beans at lp 100 does this), B's two leaves above it go to
+    A's leaves at their places (0.56 -> 0.55, 0.77 -> 0.73), not to A's two lowest (every pair shifted by one node).
+    Planted bug, the gap paired from the bottom: (3, 3), (4, 4)."""
+    parent_b, parent_a = [-1, 0, 1, 1, 1], [-1, 0, 1, 1, 1, 1]
+    s_b = [0.0, 0.5, 0.35, 0.56, 0.77]
+    s_a = [0.0, 0.5, 0.27, 0.34, 0.55, 0.73]  # 2: a spur, 3-5: leaves
+    done = spatiotemporal_module.completed_matches([(0, 0), (1, 1), (2, 2)], parent_b, parent_a, s_b, s_a)
+    assert done == [(0, 0), (1, 1), (2, 2), (3, 4), (4, 5)]
+    # B's side longer: the same choice from the other side; equal places: extras at the top, as the index order
+    assert spatiotemporal_module.gap_pairs([2, 3, 4], [4, 5], s_b, s_a) == [(3, 4), (4, 5)]
+    assert spatiotemporal_module.gap_pairs([1, 2, 3], [1, 2], [0.5] * 4, [0.5] * 3) == [(1, 1), (2, 2)]

@@ -19,14 +19,14 @@ The pipeline, for 4D trees ``A`` (reference) and ``B`` (moving):
    (``CrossSettings.fallback_rotation``, default ``"vertical"``) and its two candidates
    (``"registered_vertical"``, ``"correspondence_vertical"``) join.
    Each registration's correspondence is also *completed* by the index order where the two agree
-   (:func:`completed_matches`: pairs of slots both left unmatched under matched parents; ``"completed"``, identity
-   warps): a registration with a large ``lp`` leaves organs at different nodes and spurs unmatched, which the 4D
-   distance (the space's ``lp``) pays for in full, so without it the index order could beat the registration's
-   organs on distance alone. Last, the registration's correspondences (found and completed) are tried again with
-   the warps that minimise the 4D distance itself (:func:`fourd_warps`, one elastic matching per slot over all
-   times at once; ``"correspondence_4d"``, ``"completed_4d"``...), and, where still no registered candidate beats
-   index order, the index order too (``"index_order_4d"``): where the index order is already the best
-   correspondence (sequences chained by node rank), the spatial stage still lowers the distance through the
+   (:func:`completed_matches`: pairs of slots both left unmatched under matched parents, in order and by place;
+   ``"completed"``, identity warps): a registration with a large ``lp`` leaves organs at different nodes and spurs
+   unmatched, which the 4D distance (the space's ``lp``) pays for in full, so without it the index order could beat
+   the registration's organs on distance alone. Last, the registration's correspondences (found and completed) are
+   tried again with the warps that minimise the 4D distance itself (:func:`fourd_warps`, one elastic matching per
+   slot over all times at once; ``"correspondence_4d"``, ``"completed_4d"``...), and, where still no registered
+   candidate beats index order, the index order too (``"index_order_4d"``): where the index order is already the
+   best correspondence (sequences chained by node rank), the spatial stage still lowers the distance through the
    branches' parameterisations.
 3. **Tree space**: PCA of all frames' weighted SRVFT features (all components by default, so coefficient
    distances are exactly tree distances); each 4D tree becomes a trajectory in ``R^k``, resampled at ``n_t``
@@ -43,6 +43,7 @@ identity warps and rotation), after the spatial registration, and after the temp
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Sequence
 from concurrent.futures import Executor
@@ -76,8 +77,8 @@ from .trajectory import fine_size, resample_trajectory, trajectory_srvf
 from .within import AlignedSequence, inverse_at, register_sequence
 
 __all__ = ["SpatiotemporalRegistration", "bounded_slots", "combine_many", "combine_sequences", "completed_matches",
-           "fourd_warps", "grow_union", "layout_trajectories", "open_slots", "place_sequence", "place_targets",
-           "register4d", "representative_tree", "slot_masses", "union_subset"]
+           "fourd_warps", "gap_pairs", "grow_union", "layout_trajectories", "open_slots", "place_sequence",
+           "place_targets", "register4d", "representative_tree", "slot_masses", "union_subset"]
 
 
 
@@ -463,12 +464,56 @@ def fourd_warps(layout: AlignedTrees, n_ref: int, ref_times: Tensor, mov_times: 
     return out
 
 
+def gap_pairs(free_mov: Sequence[int], free_ref: Sequence[int], s_mov: Sequence[float], s_ref: Sequence[float]
+              ) -> list[tuple[int, int]]:
+    """The children of one gap (:func:`completed_matches`) paired in their order along the parents:
+    ``min(len(free_mov), len(free_ref))`` pairs, the longer side's extras chosen to minimise the summed squared
+    difference of the pairs' places ``s`` (ties: extras at the top, as the index order leaves them).
+
+    Why: the lowest of one side's children is not the lowest's partner where the other side has a child below them
+    (a spur, an organ the registration left out): pairing from the bottom would shift every pair above by one.
+
+    Args:
+        free_mov, free_ref: the gap's children of each tree, in their order along the parents.
+        s_mov, s_ref: every branch's place on its parent.
+
+    Returns:
+        ``[(moving branch, reference branch), ...]`` in order.
+
+    Example (B's two children sit by A's upper two; the index order would pair B's lowest with A's lowest):
+        >>> gap_pairs([5, 6], [1, 2, 3], [0.0] * 5 + [0.55, 0.75], [0.0, 0.33, 0.55, 0.73])
+        [(5, 2), (6, 3)]
+    """
+    swap = len(free_mov) > len(free_ref)
+    short, long_ = (free_ref, free_mov) if swap else (free_mov, free_ref)
+    s_short, s_long = (s_ref, s_mov) if swap else (s_mov, s_ref)
+    n, m = len(short), len(long_)
+
+    def cost(i: int, j: int) -> float:
+        return (float(s_short[short[i]]) - float(s_long[long_[j]])) ** 2
+
+    # best[i][j]: the first i of the short side paired within the first j of the long side
+    best = [[0.0] * (m + 1)] + [[math.inf] * (m + 1) for _ in range(n)]
+    for i in range(1, n + 1):
+        for j in range(i, m + 1):
+            best[i][j] = min(best[i][j - 1], best[i - 1][j - 1] + cost(i - 1, j - 1))
+    pairs = []
+    i, j = n, m
+    while i > 0:
+        if j > i and best[i][j - 1] <= best[i - 1][j - 1] + cost(i - 1, j - 1):
+            j -= 1  # the long side's child j - 1 left out
+        else:
+            pairs.append((short[i - 1], long_[j - 1]) if not swap else (long_[j - 1], short[i - 1]))
+            i, j = i - 1, j - 1
+    return pairs[::-1]
+
+
 def completed_matches(matches: Sequence[tuple[int, int]], parent_mov: Sequence[int], parent_ref: Sequence[int],
                       s_mov: Sequence[float], s_ref: Sequence[float]) -> list[tuple[int, int]]:
     """``matches`` completed in index order between its pairs: under every matched pair of parents, the children
     both trees leave unmatched between two consecutive matched siblings (below the first, above the last) are paired
-    in their order along the parents, extras left out (as :func:`~torch4dtree.trees.registration.index_order_matches`
-    does on whole nodes), parents first, so that added pairs keep their order with the matched siblings.
+    in their order along the parents (:func:`gap_pairs`: where one side has more, those whose places fit worst are
+    left out), parents first, so that added pairs keep their order with the matched siblings.
 
     Args:
         matches: ``[(moving branch, reference branch), ...]``, a partial matching mapping parents to parents.
@@ -509,7 +554,7 @@ def completed_matches(matches: Sequence[tuple[int, int]], parent_mov: Sequence[i
         for hi_m, hi_r in [*cuts, (len(km), len(kr))]:
             free_m = [b for b in km[lo_m:hi_m] if b not in out]
             free_r = [a for a in kr[lo_r:hi_r] if a not in taken]
-            for b, a in zip(free_m, free_r):
+            for b, a in gap_pairs(free_m, free_r, s_mov, s_ref):
                 out[b] = a
                 taken.add(a)
                 pending.append((b, a))
