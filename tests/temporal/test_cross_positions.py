@@ -63,7 +63,7 @@ def test_population_cross_registrations_use_the_setting(plants, monkeypatch):
     pop = Population(n_t=4, medoid_candidates=2, registration=search, cross=ARC).fit(plants)
     # within a sequence: register_sequence's own positions and order, the shared search settings
     assert within and all(set(kw) == {"progress", "registration"} and kw["registration"] is search for kw in within)
-    cross = [kw for kw in cross if kw["positions"] != "rank"]  # the within-sequence ones use node ranks
+    cross = [kw for kw in cross if kw["positions"] != settings_module.SEQUENCE_POSITIONS]  # not within-sequence
     assert cross and all(kw["positions"] == "arclength" and kw["order_tol"] == 0.1 for kw in cross)
     rep = pop.report_["cross_registration"]
     assert rep["positions"] == "arclength" and rep["order_tol"] == 0.1
@@ -72,7 +72,7 @@ def test_population_cross_registrations_use_the_setting(plants, monkeypatch):
     # transform registers a new plant with the same settings
     calls = _spy_registrations(monkeypatch)
     pop.transform(plants[0])
-    calls = [kw for kw in calls if kw["positions"] != "rank"]
+    calls = [kw for kw in calls if kw["positions"] != settings_module.SEQUENCE_POSITIONS]
     assert len(calls) == 1 and calls[0]["positions"] == "arclength" and calls[0]["order_tol"] == 0.1
 
 
@@ -91,7 +91,7 @@ def test_register4d_cross_registration_uses_the_setting(plants, monkeypatch):
     calls = _spy_registrations(monkeypatch)
     cross = CrossSettings(positions="arclength", lp=60.0, order_tol=None)
     r = register4d(plants[0], plants[1], n_t=4, cross=cross)
-    calls = [kw for kw in calls if kw["positions"] != "rank"]  # the within-sequence ones use node ranks
+    calls = [kw for kw in calls if kw["positions"] != settings_module.SEQUENCE_POSITIONS]  # not within-sequence
     assert calls and all(kw["positions"] == "arclength" and kw["order_tol"] is None for kw in calls)
     assert within and all(set(kw) == {"progress", "registration"} for kw in within)
     assert r.cross_registration["positions"] == "arclength" and r.cross_registration["order_tol"] is None
