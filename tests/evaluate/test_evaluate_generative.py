@@ -7,6 +7,8 @@ from __future__ import annotations
 import argparse
 import json
 import math
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import nullcontext
 from pathlib import Path
 
 import pytest
@@ -18,10 +20,11 @@ from torch4dtree.evaluate import generative as gen
 from torch4dtree.evaluate import generative_metrics as metrics
 from torch4dtree.evaluate import generative_split as split
 from torch4dtree.evaluate.data import MAX_FOLDS, MORPHO_DRAWS, QUICK_MORPHO_DRAWS
-from torch4dtree.evaluate.generative_organs import event_rates, organ_events
+from torch4dtree.evaluate.generative_organs import encode_plants, event_rates, organ_events
 from torch4dtree.evaluate.morphometrics import compare_populations, population_curves
 from torch4dtree.model.organs import OrganModel
 from torch4dtree.temporal import register_trajectories
+from torch4dtree.temporal.population import Population
 
 
 def _line(points: list[float]) -> torch.Tensor:
@@ -242,6 +245,21 @@ def test_organ_events_count_a_vanishing_organ() -> None:
     backwards = type(plant)(plant.frames[[2, 1, 0]], plant.times, plant.name)  # time reversed: organs shrink, vanish
     rev = event_rates([backwards])
     assert rev["vanish"] > 0 or rev["shrink"] > 0
+
+
+@pytest.mark.parametrize("threads", [False, True])
+def test_encoding_once_gives_the_encodings_and_event_rates_of_registering_twice(threads: bool) -> None:
+    plants = [synthetic_plant("maize", seed=i, n_frames=3, T=16).sequence for i in range(3)]
+    plants.append(plants[0][[0]])  # one frame: encoded, no events
+    pop = Population(n_t=4, medoid_candidates=1).fit(plants[:2])
+    with ThreadPoolExecutor(2) if threads else nullcontext() as ex:
+        encs, aligned = encode_plants(pop, plants, ex)
+    assert [a is None for a in aligned] == [False, False, False, True]
+    for e, f in zip(encs, pop.transform_many(plants)):
+        for x, y in ((e.trajectory, f.trajectory), (e.frame_coefficients, f.frame_coefficients),
+                     (e.dropped_sq_norm, f.dropped_sq_norm), (e.aligned.features(), f.aligned.features())):
+            assert torch.equal(x, y)
+    assert event_rates(plants, aligned) == event_rates(plants)
 
 
 # ----------------------------------------------------------------------------- the checks, on a small population

@@ -15,7 +15,9 @@ Also here, measured on 4D trees whatever made them:
   (``|q|^2 = |c'|``), so the share is the summed length over frames of those organs (and their descendants, whose
   keys extend theirs) over the plant's summed length.
 * :func:`organ_events`: organs shrinking or vanishing between consecutive frames, with organ identities from the
-  within-sequence registration (the same path for samples, training and held-out plants).
+  within-sequence registration (the same path for samples, training and held-out plants). Plants the section also
+  writes in the layout are registered once (:func:`encode_plants`): ``population.transform`` starts with the same
+  within-sequence registration, and a registration is most of an encoding's cost.
 * :func:`organ_forecast`: the organ model's forecast (:func:`~torch4dtree.model.organ_forecast.forecast_organs`)
   of a held-out plant's second half, beside "the last observed frame stays", both written in the layout as a
   whole sequence (observed frames, then the guess) and read at the plant's own frame times, and the 4D mean. The
@@ -26,6 +28,8 @@ Also here, measured on 4D trees whatever made them:
 from __future__ import annotations
 
 from collections.abc import Sequence
+from concurrent.futures import Executor
+from functools import partial
 from typing import Any
 
 import torch
@@ -34,12 +38,14 @@ from torch import Tensor
 from ..model import FourDTreeModel, OrganModel
 from ..model.organ_forecast import forecast_organs
 from ..model.organ_table import plant_organs
+from ..parallel import run_tasks
+from ..temporal.population import Population, SequenceEncoding
 from ..temporal.registration import time_warp_trajectory
-from ..temporal.within import register_sequence
+from ..temporal.within import AlignedSequence, register_sequence
 from ..trees.structures import Trees, TreeSequence
 
-__all__ = ["FORECAST_DRAWS", "SHRINK_TOL", "event_rates", "organ_events", "organ_forecast", "organ_forecasts",
-           "outside_keys_share"]
+__all__ = ["FORECAST_DRAWS", "SHRINK_TOL", "encode_plants", "event_rates", "organ_events", "organ_forecast",
+           "organ_forecasts", "outside_keys_share"]
 
 # an organ shrinks between two frames when it loses more than this share of its length (skeleton noise and the
 # registration's splits move lengths by a few per cent)
@@ -70,10 +76,11 @@ def outside_keys_share(organs: OrganModel, plant: TreeSequence) -> float:
     return outside / total if total > 0 else 0.0
 
 
-def organ_events(plant: TreeSequence) -> dict[str, int]:
+def organ_events(plant: TreeSequence, aligned: AlignedSequence | None = None) -> dict[str, int]:
     """Organs of a 4D tree between consecutive frames: ``present`` (organ-frames with a next frame), ``shrink``
     (present in both, the later more than :data:`SHRINK_TOL` shorter) and ``vanish`` (gone in the next frame);
-    organ identities from the within-sequence registration.
+    organ identities from the within-sequence registration, ``aligned`` if already computed (else
+    :func:`~torch4dtree.temporal.register_sequence` with its defaults).
 
     Example:
         >>> from torch4dtree.data.synthetic import synthetic_plant
@@ -83,7 +90,7 @@ def organ_events(plant: TreeSequence) -> dict[str, int]:
     if len(plant) < 2:
         return {"present": 0, "shrink": 0, "vanish": 0}
     seq = plant.to(torch.float64)
-    ident = register_sequence(seq).identity  # (n, S)
+    ident = (aligned if aligned is not None else register_sequence(seq)).identity  # (n, S)
     ptr = seq.frames.ptr[:-1]
     lengths = seq.frames.branch_lengths()
     glob = ident + ptr[:, None]
@@ -94,8 +101,10 @@ def organ_events(plant: TreeSequence) -> dict[str, int]:
     return {"present": int(now.sum()), "shrink": int(shrink.sum()), "vanish": int((now & ~nxt).sum())}
 
 
-def event_rates(plants: Sequence[TreeSequence]) -> dict[str, float]:
-    """Pooled :func:`organ_events` of several 4D trees: ``shrink`` and ``vanish`` per organ and frame step, and
+def event_rates(plants: Sequence[TreeSequence], aligned: Sequence[AlignedSequence | None] | None = None
+                ) -> dict[str, float]:
+    """Pooled :func:`organ_events` of several 4D trees (``aligned``: their within-sequence registrations where
+    already computed, e.g. by :func:`encode_plants`): ``shrink`` and ``vanish`` per organ and frame step, and
     the ``organ_steps`` they are counted over.
 
     Example:
@@ -105,11 +114,47 @@ def event_rates(plants: Sequence[TreeSequence]) -> dict[str, float]:
         (0.0, True)
     """
     tot = {"present": 0, "shrink": 0, "vanish": 0}
-    for p in plants:
-        for k, v in organ_events(p).items():
+    for p, a in zip(plants, aligned if aligned is not None else [None] * len(plants)):
+        for k, v in organ_events(p, a).items():
             tot[k] += v
     n = max(tot["present"], 1)
     return {"shrink": tot["shrink"] / n, "vanish": tot["vanish"] / n, "organ_steps": float(tot["present"])}
+
+
+def transform_registered(population: Population, sequence: TreeSequence, aligned: AlignedSequence | None
+                         ) -> SequenceEncoding:
+    """``population.transform(sequence, aligned)`` (a task: top-level, picklable)."""
+    return population.transform(sequence, aligned)
+
+
+def encode_plants(population: Population, plants: Sequence[TreeSequence], executor: Executor | None = None
+                  ) -> tuple[list[SequenceEncoding], list[AlignedSequence | None]]:
+    """``population.transform_many(plants, executor)`` and each plant's within-sequence registration that it
+    starts with (for :func:`event_rates`), each plant registered once; ``None`` for a plant read at another number
+    of points per branch than the layout's (``transform`` resamples it first) or of one frame.
+
+    Example:
+        >>> from torch4dtree.data.synthetic import synthetic_plant
+        >>> plants = [synthetic_plant("maize", i, n_frames=3, T=8).sequence for i in range(2)]
+        >>> pop = Population(n_t=4, medoid_candidates=1).fit(plants)
+        >>> encs, aligned = encode_plants(pop, plants)
+        >>> [e.trajectory.shape[0] for e in encs], [len(a) for a in aligned]
+        ([4, 4], [3, 3])
+    """
+    device, T = population.ref_points.device, population.ref_points.shape[1]
+    seqs = [s.to(device=device, dtype=torch.float64) for s in plants]
+    mine = [i for i, s in enumerate(seqs) if s.frames.T == T and len(s) >= 2]
+    within = partial(register_sequence, registration=population.registration)
+    done = run_tasks(within, [(seqs[i],) for i in mine], executor, device)
+    aligned: list[AlignedSequence | None] = [None] * len(seqs)
+    for i, a in zip(mine, done):
+        aligned[i] = a
+    if executor is None:
+        encs = [population.transform(s, a) for s, a in zip(seqs, aligned)]
+    else:
+        encs = run_tasks(transform_registered, list(zip(seqs, aligned)), executor, device,
+                         shared=population.portable())
+    return encs, aligned
 
 
 def _read_at(features: Tensor, times: Tensor, at: Tensor) -> Tensor:
