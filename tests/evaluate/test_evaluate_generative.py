@@ -157,6 +157,26 @@ def test_ground_metric_does_not_depend_on_the_pairs_per_call(monkeypatch: pytest
     assert torch.equal(metrics.distance4d(a, b), whole)
 
 
+def test_ground_metric_in_each_pairs_span_is_the_metric_in_all_coordinates() -> None:
+    g = torch.Generator().manual_seed(3)
+    a = torch.randn(6, 8, 40, generator=g, dtype=torch.float64).cumsum(1)
+    b = a.flip(0) + 0.5 * torch.randn(6, 8, 40, generator=g, dtype=torch.float64).cumsum(1)
+    xs, ys = metrics.pair_span(a, b)
+    assert xs.shape == (6, 8, 16) and torch.allclose(torch.cdist(xs, ys), torch.cdist(a, b))
+    full = torch.minimum(register_trajectories(a, b).distance, register_trajectories(b, a).distance)
+    assert torch.allclose(metrics.distance4d(a, b), full, rtol=1e-6, atol=0)
+    assert torch.equal(metrics.pair_span(a[..., :16], b[..., :16])[0], a[..., :16])
+
+
+def test_draws_read_from_a_known_matrix_equal_their_registrations() -> None:
+    g = torch.Generator().manual_seed(2)
+    pool = torch.randn(6, 8, 5, generator=g, dtype=torch.float64).cumsum(1)
+    idx = torch.stack([torch.randperm(6, generator=g)[:4] for _ in range(3)] + [torch.tensor([1, 1, 0, 5])])
+    assert torch.equal(metrics.within_draw(pool, idx, metrics.distance_matrix(pool)), metrics.within_draw(pool, idx))
+    with pytest.raises(ValueError, match="known distances"):
+        metrics.within_draw(pool, idx, torch.zeros(5, 5, dtype=torch.float64))
+
+
 # ----------------------------------------------------------------------------- the section on a tiny dataset
 
 

@@ -350,9 +350,9 @@ def _fold(train: list[Plant4D], held: list[Plant4D], settings: EvalSettings, gen
             pool, idx = _pool(name, model, t_alpha[..., :k], h, draws, gen)
             pools[name] = pool
             pool = _pad(pool, r)
-        # the training plants: known
         d_pr = d_rt.T if name == "memorise" else distance_matrix(pool, r_alpha, executor=executor)
-        d_ss = within_draw(pool, idx)
+        # the training plants' distances are known (both layouts)
+        d_ss = within_draw(pool, idx, {"memorise": d_tt, "memorise_encoded": d_tete}.get(name))
         per_draw[name] = [set_metrics(d_ss[j], d_pr[idx[j]], d_rr) for j in range(draws)]
         if name in ("model", "paper_scalar"):
             novel[name] = novelty(distance_matrix(pool[:NOVELTY_SAMPLES], t_alpha, executor=executor), d_tt)
