@@ -20,7 +20,7 @@ from torch4dtree.evaluate import generative as gen
 from torch4dtree.evaluate import generative_metrics as metrics
 from torch4dtree.evaluate import generative_split as split
 from torch4dtree.evaluate.data import MAX_FOLDS, MORPHO_DRAWS, QUICK_MORPHO_DRAWS
-from torch4dtree.evaluate.generative_organs import encode_plants, event_rates, organ_events
+from torch4dtree.evaluate.generative_organs import RepeatedPairs, encode_plants, event_rates, organ_events
 from torch4dtree.evaluate.morphometrics import compare_populations, population_curves
 from torch4dtree.model.organs import OrganModel
 from torch4dtree.temporal import register_trajectories
@@ -280,6 +280,20 @@ def test_encoding_once_gives_the_encodings_and_event_rates_of_registering_twice(
                      (e.dropped_sq_norm, f.dropped_sq_norm), (e.aligned.features(), f.aligned.features())):
             assert torch.equal(x, y)
     assert event_rates(plants, aligned) == event_rates(plants)
+
+
+def test_remembered_pairs_encode_as_the_population_does_and_search_each_pair_once() -> None:
+    plants = [synthetic_plant("maize", seed=i, n_frames=4, T=16).sequence for i in range(2)]
+    pop = Population(n_t=4, medoid_candidates=1).fit(plants)
+    pairs = RepeatedPairs.of(pop.registration)
+    plant = plants[1]
+    longer = type(plant)(plant.frames[[0, 1, 2, 3, 3]], torch.cat([plant.times, plant.times[-1:] + 1]), plant.name)
+    enc = encode_plants(pop, [plant], registration=pairs)[0][0]
+    assert len(pairs.memo) == 3  # the three consecutive pairs
+    assert torch.equal(enc.aligned.features(), pop.transform(plant).aligned.features())
+    again = encode_plants(pop, [longer], registration=pairs)[0][0]
+    assert len(pairs.memo) == 4  # only the new pair searched
+    assert torch.equal(again.aligned.features(), pop.transform(longer).aligned.features())
 
 
 # ----------------------------------------------------------------------------- the checks, on a small population

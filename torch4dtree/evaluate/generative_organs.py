@@ -29,6 +29,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from concurrent.futures import Executor
+from dataclasses import dataclass, field, fields
 from functools import partial
 from typing import Any
 
@@ -39,13 +40,14 @@ from ..model import FourDTreeModel, OrganModel
 from ..model.organ_forecast import forecast_organs
 from ..model.organ_table import plant_organs
 from ..parallel import run_tasks
+from ..settings import RegistrationSettings
 from ..temporal.population import Population, SequenceEncoding
 from ..temporal.registration import time_warp_trajectory
 from ..temporal.within import AlignedSequence, register_sequence
 from ..trees.structures import Trees, TreeSequence
 
-__all__ = ["FORECAST_DRAWS", "SHRINK_TOL", "encode_plants", "event_rates", "organ_events", "organ_forecast",
-           "organ_forecasts", "outside_keys_share"]
+__all__ = ["FORECAST_DRAWS", "SHRINK_TOL", "RepeatedPairs", "encode_plants", "event_rates", "organ_events",
+           "organ_forecast", "organ_forecasts", "outside_keys_share"]
 
 # an organ shrinks between two frames when it loses more than this share of its length (skeleton noise and the
 # registration's splits move lengths by a few per cent)
@@ -121,17 +123,59 @@ def event_rates(plants: Sequence[TreeSequence], aligned: Sequence[AlignedSequenc
     return {"shrink": tot["shrink"] / n, "vanish": tot["vanish"] / n, "organ_steps": float(tot["present"])}
 
 
+def _tree_key(trees: Trees) -> tuple:
+    """Everything a registration reads of a plain :class:`Trees`, hashable."""
+    return tuple((str(t.dtype), tuple(t.shape), t.detach().cpu().contiguous().numpy().tobytes())
+                 for t in (trees.points, trees.parent, trees.s, trees.num_branches, trees.label))
+
+
+@dataclass(frozen=True)
+class RepeatedPairs(RegistrationSettings):
+    """Registration settings that remember each registration of plain :class:`Trees` by its exact inputs.
+
+    Why: the continuations of one forecast share the observed frames, so the within-sequence registration of each
+    whole sequence (observed frames, then the continuation) would search the same consecutive pairs again; a
+    registration is a function of its inputs, so the remembered result is the one a new search returns.
+
+    Example:
+        >>> pairs = RepeatedPairs.of(RegistrationSettings())
+        >>> pairs.n_starts == RegistrationSettings().n_starts, pairs.memo
+        (True, {})
+    """
+
+    memo: dict = field(default_factory=dict, compare=False, repr=False)
+
+    @classmethod
+    def of(cls, settings: RegistrationSettings) -> RepeatedPairs:
+        """``settings`` with an empty memory."""
+        return cls(**{f.name: getattr(settings, f.name) for f in fields(RegistrationSettings)})
+
+    def register(self, trees: Any, reference: Any, lambdas: Sequence[float], rotation: str, *,  # noqa: ANN401
+                 positions: str, order_tol: float | None, lp_relative: bool, symmetric: bool) -> list[Any]:
+        """:meth:`RegistrationSettings.register`, remembered for plain :class:`Trees` (module doc)."""
+        args = {"positions": positions, "order_tol": order_tol, "lp_relative": lp_relative, "symmetric": symmetric}
+        if type(trees) is not Trees or type(reference) is not Trees:
+            return super().register(trees, reference, lambdas, rotation, **args)
+        key = (_tree_key(trees), _tree_key(reference), tuple(float(x) for x in lambdas), rotation,
+               *sorted(args.items()))
+        if key not in self.memo:
+            self.memo[key] = super().register(trees, reference, lambdas, rotation, **args)
+        return self.memo[key]
+
+
 def transform_registered(population: Population, sequence: TreeSequence, aligned: AlignedSequence | None
                          ) -> SequenceEncoding:
     """``population.transform(sequence, aligned)`` (a task: top-level, picklable)."""
     return population.transform(sequence, aligned)
 
 
-def encode_plants(population: Population, plants: Sequence[TreeSequence], executor: Executor | None = None
+def encode_plants(population: Population, plants: Sequence[TreeSequence], executor: Executor | None = None,
+                  registration: RegistrationSettings | None = None
                   ) -> tuple[list[SequenceEncoding], list[AlignedSequence | None]]:
     """``population.transform_many(plants, executor)`` and each plant's within-sequence registration that it
     starts with (for :func:`event_rates`), each plant registered once; ``None`` for a plant read at another number
-    of points per branch than the layout's (``transform`` resamples it first) or of one frame.
+    of points per branch than the layout's (``transform`` resamples it first) or of one frame. ``registration``:
+    the within-sequence registrations' settings if not the population's own (e.g. :class:`RepeatedPairs` of them).
 
     Example:
         >>> from torch4dtree.data.synthetic import synthetic_plant
@@ -144,7 +188,7 @@ def encode_plants(population: Population, plants: Sequence[TreeSequence], execut
     device, T = population.ref_points.device, population.ref_points.shape[1]
     seqs = [s.to(device=device, dtype=torch.float64) for s in plants]
     mine = [i for i, s in enumerate(seqs) if s.frames.T == T and len(s) >= 2]
-    within = partial(register_sequence, registration=population.registration)
+    within = partial(register_sequence, registration=registration or population.registration)
     done = run_tasks(within, [(seqs[i],) for i in mine], executor, device)
     aligned: list[AlignedSequence | None] = [None] * len(seqs)
     for i, a in zip(mine, done):
@@ -211,12 +255,14 @@ def organ_forecast(paper: FourDTreeModel, organs: OrganModel, plant: TreeSequenc
     observed, at = plant[list(range(half))], plant.times[half:]
     last = TreeSequence(observed.frames[[half - 1] * (n - half)], at.to(observed.times.dtype), plant.name)
     true_final = float(plant.frames[n - 1].total_length()[0])
+    pairs = RepeatedPairs.of(paper.population.registration)  # the observed frames' pairs: searched once
 
     def encoded(guess: TreeSequence) -> tuple[Tensor, float]:
         """The guess's layout features at the plant's forecast times, written with the observed frames, and the
         relative error of its total length at the plant's last time."""
         whole = _whole(observed, guess)
-        feats = _read_at(paper.population.transform(whole).aligned.features().to(truth), whole.times, at)
+        enc = encode_plants(paper.population, [whole], registration=pairs)[0][0]
+        feats = _read_at(enc.aligned.features().to(truth), whole.times, at)
         j = int(torch.searchsorted(whole.times.to(torch.float64).contiguous(),
                                    at[-1].to(torch.float64).reshape(1)).clamp(max=len(whole) - 1))
         return feats, abs(float(whole.frames[j].total_length()[0]) - true_final) / max(true_final, SAME_TIME)
