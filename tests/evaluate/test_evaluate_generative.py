@@ -7,6 +7,8 @@ from __future__ import annotations
 import argparse
 import json
 import math
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import nullcontext
 from pathlib import Path
 
 import pytest
@@ -18,10 +20,11 @@ from torch4dtree.evaluate import generative as gen
 from torch4dtree.evaluate import generative_metrics as metrics
 from torch4dtree.evaluate import generative_split as split
 from torch4dtree.evaluate.data import MAX_FOLDS, MORPHO_DRAWS, QUICK_MORPHO_DRAWS
-from torch4dtree.evaluate.generative_organs import event_rates, organ_events
+from torch4dtree.evaluate.generative_organs import RepeatedPairs, encode_plants, event_rates, organ_events
 from torch4dtree.evaluate.morphometrics import compare_populations, population_curves
 from torch4dtree.model.organs import OrganModel
 from torch4dtree.temporal import register_trajectories
+from torch4dtree.temporal.population import Population
 
 
 def _line(points: list[float]) -> torch.Tensor:
@@ -154,6 +157,26 @@ def test_ground_metric_does_not_depend_on_the_pairs_per_call(monkeypatch: pytest
     assert torch.equal(metrics.distance4d(a, b), whole)
 
 
+def test_ground_metric_in_each_pairs_span_is_the_metric_in_all_coordinates() -> None:
+    g = torch.Generator().manual_seed(3)
+    a = torch.randn(6, 8, 40, generator=g, dtype=torch.float64).cumsum(1)
+    b = a.flip(0) + 0.5 * torch.randn(6, 8, 40, generator=g, dtype=torch.float64).cumsum(1)
+    xs, ys = metrics.pair_span(a, b)
+    assert xs.shape == (6, 8, 16) and torch.allclose(torch.cdist(xs, ys), torch.cdist(a, b))
+    full = torch.minimum(register_trajectories(a, b).distance, register_trajectories(b, a).distance)
+    assert torch.allclose(metrics.distance4d(a, b), full, rtol=1e-6, atol=0)
+    assert torch.equal(metrics.pair_span(a[..., :16], b[..., :16])[0], a[..., :16])
+
+
+def test_draws_read_from_a_known_matrix_equal_their_registrations() -> None:
+    g = torch.Generator().manual_seed(2)
+    pool = torch.randn(6, 8, 5, generator=g, dtype=torch.float64).cumsum(1)
+    idx = torch.stack([torch.randperm(6, generator=g)[:4] for _ in range(3)] + [torch.tensor([1, 1, 0, 5])])
+    assert torch.equal(metrics.within_draw(pool, idx, metrics.distance_matrix(pool)), metrics.within_draw(pool, idx))
+    with pytest.raises(ValueError, match="known distances"):
+        metrics.within_draw(pool, idx, torch.zeros(5, 5, dtype=torch.float64))
+
+
 # ----------------------------------------------------------------------------- the section on a tiny dataset
 
 
@@ -242,6 +265,35 @@ def test_organ_events_count_a_vanishing_organ() -> None:
     backwards = type(plant)(plant.frames[[2, 1, 0]], plant.times, plant.name)  # time reversed: organs shrink, vanish
     rev = event_rates([backwards])
     assert rev["vanish"] > 0 or rev["shrink"] > 0
+
+
+@pytest.mark.parametrize("threads", [False, True])
+def test_encoding_once_gives_the_encodings_and_event_rates_of_registering_twice(threads: bool) -> None:
+    plants = [synthetic_plant("maize", seed=i, n_frames=3, T=16).sequence for i in range(3)]
+    plants.append(plants[0][[0]])  # one frame: encoded, no events
+    pop = Population(n_t=4, medoid_candidates=1).fit(plants[:2])
+    with ThreadPoolExecutor(2) if threads else nullcontext() as ex:
+        encs, aligned = encode_plants(pop, plants, ex)
+    assert [a is None for a in aligned] == [False, False, False, True]
+    for e, f in zip(encs, pop.transform_many(plants)):
+        for x, y in ((e.trajectory, f.trajectory), (e.frame_coefficients, f.frame_coefficients),
+                     (e.dropped_sq_norm, f.dropped_sq_norm), (e.aligned.features(), f.aligned.features())):
+            assert torch.equal(x, y)
+    assert event_rates(plants, aligned) == event_rates(plants)
+
+
+def test_remembered_pairs_encode_as_the_population_does_and_search_each_pair_once() -> None:
+    plants = [synthetic_plant("maize", seed=i, n_frames=4, T=16).sequence for i in range(2)]
+    pop = Population(n_t=4, medoid_candidates=1).fit(plants)
+    pairs = RepeatedPairs.of(pop.registration)
+    plant = plants[1]
+    longer = type(plant)(plant.frames[[0, 1, 2, 3, 3]], torch.cat([plant.times, plant.times[-1:] + 1]), plant.name)
+    enc = encode_plants(pop, [plant], registration=pairs)[0][0]
+    assert len(pairs.memo) == 3  # the three consecutive pairs
+    assert torch.equal(enc.aligned.features(), pop.transform(plant).aligned.features())
+    again = encode_plants(pop, [longer], registration=pairs)[0][0]
+    assert len(pairs.memo) == 4  # only the new pair searched
+    assert torch.equal(again.aligned.features(), pop.transform(longer).aligned.features())
 
 
 # ----------------------------------------------------------------------------- the checks, on a small population

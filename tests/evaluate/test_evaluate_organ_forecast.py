@@ -7,6 +7,7 @@ import pytest
 import torch
 
 from torch4dtree.data.synthetic import synthetic_plant
+from torch4dtree.evaluate import generative_organs
 from torch4dtree.evaluate.generative_organs import organ_forecasts
 from torch4dtree.model import FourDTreeModel, OrganModel
 from torch4dtree.settings import ModelSettings
@@ -40,3 +41,10 @@ def test_forecast_point_is_no_farther_than_a_continuation_on_average(
 
 def test_forecast_seeds_reproduce(fold: tuple[FourDTreeModel, OrganModel, list[TreeSequence]]) -> None:
     assert _run(fold, 5) == _run(fold, 5)
+
+
+def test_remembered_pairs_change_no_forecast(fold: tuple[FourDTreeModel, OrganModel, list[TreeSequence]],
+                                             monkeypatch: pytest.MonkeyPatch) -> None:
+    remembered = _run(fold, 7)
+    monkeypatch.setattr(generative_organs.RepeatedPairs, "of", classmethod(lambda cls, settings: settings))
+    assert _run(fold, 7) == remembered  # every pair searched again

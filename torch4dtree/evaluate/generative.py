@@ -111,7 +111,7 @@ from ..temporal.trajectory import resample_trajectory
 from ..trees.structures import TreeSequence
 from .data import EvalData, EvalSettings, Plant4D, primary_source
 from .generative_metrics import distance4d, distance_matrix, novelty, set_metrics, within_draw
-from .generative_organs import event_rates, organ_forecasts, outside_keys_share
+from .generative_organs import encode_plants, event_rates, organ_forecasts, outside_keys_share
 from .generative_report import markdown
 from .generative_split import heldout_by_kind, load_heldout, splits
 from .morphometrics import AGES, compare_populations, files_curve, population_curves
@@ -308,8 +308,9 @@ def _fold(train: list[Plant4D], held: list[Plant4D], settings: EvalSettings, gen
           executor: Executor | None = None) -> dict[str, Any]:
     model, fit_seconds = _fit(train, settings, executor)
     organs, organ_fit_seconds = _fit_organs(train)
+    held_seqs, train_seqs = [p.sequence for p in held], [p.sequence for p in train]
     t0 = time.perf_counter()
-    encs = model.population.transform_many([p.sequence for p in held], executor)
+    encs, held_within = encode_plants(model.population, held_seqs, executor)
     encode_seconds = (time.perf_counter() - t0) / len(held)
     h = len(held)
     n_morpho = QUICK_MORPHO_SAMPLES if settings.quick else MORPHO_SAMPLES
@@ -318,10 +319,9 @@ def _fold(train: list[Plant4D], held: list[Plant4D], settings: EvalSettings, gen
     organ_samples = organs.sample(max(h, n_morpho), generator=gen)
     organ_sample_seconds = (time.perf_counter() - t0) / len(organ_samples)
     organ_morpho = organs.sample(morpho_draws * h, generator=gen)
-    train_seqs = [p.sequence for p in train]
     t0 = time.perf_counter()
     enc_organs = model.population.transform_many(organ_samples, executor)
-    enc_train = model.population.transform_many(train_seqs, executor)
+    enc_train, train_within = encode_plants(model.population, train_seqs, executor)
     organ_encode_seconds = (time.perf_counter() - t0) / (len(organ_samples) + len(train))
     frames_all, sq_all, r = _extended_frames(model, encs + enc_organs + enc_train)
     frames, sq = frames_all[:h], sq_all[:h]
@@ -330,7 +330,7 @@ def _fold(train: list[Plant4D], held: list[Plant4D], settings: EvalSettings, gen
     te_alpha = _trajectories(frames_all[h + ns:], train_seqs, model.n_t)
     k = model.population.k
     t_alpha = _pad(model.population.trajectories.detach(), r)
-    r_alpha = _trajectories(frames, [p.sequence for p in held], model.n_t)
+    r_alpha = _trajectories(frames, held_seqs, model.n_t)
     draws = QUICK_DRAWS if settings.quick else DRAWS
 
     # the generators against the held-out plants
@@ -350,9 +350,9 @@ def _fold(train: list[Plant4D], held: list[Plant4D], settings: EvalSettings, gen
             pool, idx = _pool(name, model, t_alpha[..., :k], h, draws, gen)
             pools[name] = pool
             pool = _pad(pool, r)
-        # the training plants: known
         d_pr = d_rt.T if name == "memorise" else distance_matrix(pool, r_alpha, executor=executor)
-        d_ss = within_draw(pool, idx)
+        # the training plants' distances are known (both layouts)
+        d_ss = within_draw(pool, idx, {"memorise": d_tt, "memorise_encoded": d_tete}.get(name))
         per_draw[name] = [set_metrics(d_ss[j], d_pr[idx[j]], d_rr) for j in range(draws)]
         if name in ("model", "paper_scalar"):
             novel[name] = novelty(distance_matrix(pool[:NOVELTY_SAMPLES], t_alpha, executor=executor), d_tt)
@@ -365,7 +365,7 @@ def _fold(train: list[Plant4D], held: list[Plant4D], settings: EvalSettings, gen
     t0 = time.perf_counter()
     n_ev = len(train)  # as many samples as training plants
     events = {"organs": event_rates(decoded["organs"][:n_ev]), "model": event_rates(decoded["model"][:n_ev]),
-              "training": event_rates(train_seqs), "held_out": event_rates([p.sequence for p in held])}
+              "training": event_rates(train_seqs, train_within), "held_out": event_rates(held_seqs, held_within)}
     event_seconds = time.perf_counter() - t0
     sanity = {m: v for m, v in set_metrics(d_tt, d_tt, d_tt).items() if m in METRICS}  # training set memorised
 
@@ -376,7 +376,7 @@ def _fold(train: list[Plant4D], held: list[Plant4D], settings: EvalSettings, gen
     recon_t = distance4d(t_alpha, _pad(_reconstruct(model, t_alpha[..., :k]), r))
     mean_t = distance4d(t_alpha, mean.expand_as(t_alpha))
     t0 = time.perf_counter()
-    organ_fc = organ_forecasts(model, organs, [p.sequence for p in held], encs, gen)
+    organ_fc = organ_forecasts(model, organs, held_seqs, encs, gen)
     organ_forecast_seconds = (time.perf_counter() - t0) / len(held)
     plants = []
     for i, (p, e) in enumerate(zip(held, encs)):

@@ -27,8 +27,8 @@ from torch import Tensor
 from ..parallel import pair_matrix
 from ..temporal.registration import register_trajectories
 
-__all__ = ["CHUNK", "NOVELTY_DIVISOR", "PAIR_VALUES", "distance4d", "distance_matrix", "novelty", "pairs_per_call",
-           "set_metrics", "within_draw"]
+__all__ = ["CHUNK", "NOVELTY_DIVISOR", "PAIR_VALUES", "distance4d", "distance_matrix", "novelty", "pair_span",
+           "pairs_per_call", "set_metrics", "within_draw"]
 
 CHUNK = 2048  # pairs per task of distance_matrix, and per registration call at most
 # a registration call keeps a (k, k) rotation per registered pair (both directions): calls hold at most this many
@@ -48,9 +48,29 @@ def pairs_per_call(k: int) -> int:
     return max(1, min(CHUNK, PAIR_VALUES // (2 * k * k)))
 
 
+def pair_span(x: Tensor, y: Tensor) -> tuple[Tensor, Tensor]:
+    """Pairs of trajectories ``x, y (P, n_t, k)`` written in an orthonormal basis of each pair's ``2 n_t`` samples
+    ``(P, n_t, m)``, ``m = 2 n_t``, when ``k > m`` (else unchanged): an isometry of every sample of the pair, so
+    their start points, SRVFs and time warps keep their distances, while the registration's cost grows faster than
+    ``k`` (the layout's extended coordinates reach hundreds).
+
+    Example:
+        >>> x, y = torch.randn(2, 3, 9, dtype=torch.float64), torch.randn(2, 3, 9, dtype=torch.float64)
+        >>> xs, ys = pair_span(x, y)
+        >>> xs.shape, bool(torch.allclose(torch.cdist(xs, ys), torch.cdist(x, y)))
+        (torch.Size([2, 3, 6]), True)
+    """
+    m = x.shape[-2] + y.shape[-2]
+    if x.shape[-1] <= m:
+        return x, y
+    basis = torch.linalg.qr(torch.cat([x, y], -2).transpose(-1, -2)).Q  # (P, k, m)
+    return x @ basis, y @ basis
+
+
 def distance4d(a: Tensor, b: Tensor) -> Tensor:
     """The ground metric (module doc) of pairs of trajectories ``a, b (P, n_t, k) -> (P,)``: 4D distance after
-    temporal registration, the smaller of the two directions.
+    temporal registration, the smaller of the two directions; each pair registered in its own span
+    (:func:`pair_span`: the same distances up to rounding).
 
     Example:
         >>> a = torch.linspace(0, 1, 5, dtype=torch.float64)[None, :, None].expand(2, 5, 3)
@@ -60,9 +80,9 @@ def distance4d(a: Tensor, b: Tensor) -> Tensor:
     if a.shape != b.shape:
         raise ValueError(f"trajectories must have one shape, got {tuple(a.shape)} and {tuple(b.shape)}")
     out = []
-    step = pairs_per_call(a.shape[-1])
+    step = pairs_per_call(min(a.shape[-1], 2 * a.shape[-2]))
     for i in range(0, a.shape[0], step):
-        x, y = a[i:i + step].detach(), b[i:i + step].detach()
+        x, y = pair_span(a[i:i + step].detach(), b[i:i + step].detach())
         d = register_trajectories(torch.cat([x, y]), torch.cat([y, x])).distance  # both directions in one batch
         out.append(torch.minimum(d[:len(x)], d[len(x):]))
     return torch.cat(out) if out else a.new_zeros(0)
@@ -123,9 +143,11 @@ def novelty(d_st: Tensor, d_tt: Tensor, divisor: float = NOVELTY_DIVISOR) -> dic
             "training_nn_median": threshold * divisor}
 
 
-def within_draw(pool: Tensor, idx: Tensor) -> Tensor:
+def within_draw(pool: Tensor, idx: Tensor, known: Tensor | None = None) -> Tensor:
     """``(draws, h, h)`` ground distances between the samples of each draw ``idx (draws, h)`` of trajectories
-    ``pool (P, n_t, k)`` (each distinct pool pair registered once).
+    ``pool (P, n_t, k)`` (each distinct pool pair registered once). ``known``: the pool's ``(P, P)``
+    :func:`distance_matrix` when already computed, read instead of registering the pairs again (the same numbers:
+    a pair's distance does not depend on the batch it is registered in).
 
     Example:
         >>> pool = torch.arange(3, dtype=torch.float64)[:, None, None].expand(3, 4, 1)
@@ -133,6 +155,10 @@ def within_draw(pool: Tensor, idx: Tensor) -> Tensor:
         torch.Size([1, 2, 2])
     """
     D, h = idx.shape
+    if known is not None:
+        if known.shape != (pool.shape[0], pool.shape[0]):
+            raise ValueError(f"known distances must be ({pool.shape[0]}, {pool.shape[0]}), got {tuple(known.shape)}")
+        return known[idx[:, :, None], idx[:, None, :]].clone()
     out = pool.new_zeros(D, h, h)
     if h < 2:
         return out

@@ -15,7 +15,9 @@ Also here, measured on 4D trees whatever made them:
   (``|q|^2 = |c'|``), so the share is the summed length over frames of those organs (and their descendants, whose
   keys extend theirs) over the plant's summed length.
 * :func:`organ_events`: organs shrinking or vanishing between consecutive frames, with organ identities from the
-  within-sequence registration (the same path for samples, training and held-out plants).
+  within-sequence registration (the same path for samples, training and held-out plants). Plants the section also
+  writes in the layout are registered once (:func:`encode_plants`): ``population.transform`` starts with the same
+  within-sequence registration, and a registration is most of an encoding's cost.
 * :func:`organ_forecast`: the organ model's forecast (:func:`~torch4dtree.model.organ_forecast.forecast_organs`)
   of a held-out plant's second half, beside "the last observed frame stays", both written in the layout as a
   whole sequence (observed frames, then the guess) and read at the plant's own frame times, and the 4D mean. The
@@ -26,6 +28,9 @@ Also here, measured on 4D trees whatever made them:
 from __future__ import annotations
 
 from collections.abc import Sequence
+from concurrent.futures import Executor
+from dataclasses import dataclass, field, fields
+from functools import partial
 from typing import Any
 
 import torch
@@ -34,12 +39,15 @@ from torch import Tensor
 from ..model import FourDTreeModel, OrganModel
 from ..model.organ_forecast import forecast_organs
 from ..model.organ_table import plant_organs
+from ..parallel import run_tasks
+from ..settings import RegistrationSettings
+from ..temporal.population import Population, SequenceEncoding
 from ..temporal.registration import time_warp_trajectory
-from ..temporal.within import register_sequence
+from ..temporal.within import AlignedSequence, register_sequence
 from ..trees.structures import Trees, TreeSequence
 
-__all__ = ["FORECAST_DRAWS", "SHRINK_TOL", "event_rates", "organ_events", "organ_forecast", "organ_forecasts",
-           "outside_keys_share"]
+__all__ = ["FORECAST_DRAWS", "SHRINK_TOL", "RepeatedPairs", "encode_plants", "event_rates", "organ_events",
+           "organ_forecast", "organ_forecasts", "outside_keys_share"]
 
 # an organ shrinks between two frames when it loses more than this share of its length (skeleton noise and the
 # registration's splits move lengths by a few per cent)
@@ -70,10 +78,11 @@ def outside_keys_share(organs: OrganModel, plant: TreeSequence) -> float:
     return outside / total if total > 0 else 0.0
 
 
-def organ_events(plant: TreeSequence) -> dict[str, int]:
+def organ_events(plant: TreeSequence, aligned: AlignedSequence | None = None) -> dict[str, int]:
     """Organs of a 4D tree between consecutive frames: ``present`` (organ-frames with a next frame), ``shrink``
     (present in both, the later more than :data:`SHRINK_TOL` shorter) and ``vanish`` (gone in the next frame);
-    organ identities from the within-sequence registration.
+    organ identities from the within-sequence registration, ``aligned`` if already computed (else
+    :func:`~torch4dtree.temporal.register_sequence` with its defaults).
 
     Example:
         >>> from torch4dtree.data.synthetic import synthetic_plant
@@ -83,7 +92,7 @@ def organ_events(plant: TreeSequence) -> dict[str, int]:
     if len(plant) < 2:
         return {"present": 0, "shrink": 0, "vanish": 0}
     seq = plant.to(torch.float64)
-    ident = register_sequence(seq).identity  # (n, S)
+    ident = (aligned if aligned is not None else register_sequence(seq)).identity  # (n, S)
     ptr = seq.frames.ptr[:-1]
     lengths = seq.frames.branch_lengths()
     glob = ident + ptr[:, None]
@@ -94,8 +103,10 @@ def organ_events(plant: TreeSequence) -> dict[str, int]:
     return {"present": int(now.sum()), "shrink": int(shrink.sum()), "vanish": int((now & ~nxt).sum())}
 
 
-def event_rates(plants: Sequence[TreeSequence]) -> dict[str, float]:
-    """Pooled :func:`organ_events` of several 4D trees: ``shrink`` and ``vanish`` per organ and frame step, and
+def event_rates(plants: Sequence[TreeSequence], aligned: Sequence[AlignedSequence | None] | None = None
+                ) -> dict[str, float]:
+    """Pooled :func:`organ_events` of several 4D trees (``aligned``: their within-sequence registrations where
+    already computed, e.g. by :func:`encode_plants`): ``shrink`` and ``vanish`` per organ and frame step, and
     the ``organ_steps`` they are counted over.
 
     Example:
@@ -105,11 +116,89 @@ def event_rates(plants: Sequence[TreeSequence]) -> dict[str, float]:
         (0.0, True)
     """
     tot = {"present": 0, "shrink": 0, "vanish": 0}
-    for p in plants:
-        for k, v in organ_events(p).items():
+    for p, a in zip(plants, aligned if aligned is not None else [None] * len(plants)):
+        for k, v in organ_events(p, a).items():
             tot[k] += v
     n = max(tot["present"], 1)
     return {"shrink": tot["shrink"] / n, "vanish": tot["vanish"] / n, "organ_steps": float(tot["present"])}
+
+
+def _tree_key(trees: Trees) -> tuple:
+    """Everything a registration reads of a plain :class:`Trees`, hashable."""
+    return tuple((str(t.dtype), tuple(t.shape), t.detach().cpu().contiguous().numpy().tobytes())
+                 for t in (trees.points, trees.parent, trees.s, trees.num_branches, trees.label))
+
+
+@dataclass(frozen=True)
+class RepeatedPairs(RegistrationSettings):
+    """Registration settings that remember each registration of plain :class:`Trees` by its exact inputs.
+
+    Why: the continuations of one forecast share the observed frames, so the within-sequence registration of each
+    whole sequence (observed frames, then the continuation) would search the same consecutive pairs again; a
+    registration is a function of its inputs, so the remembered result is the one a new search returns.
+
+    Example:
+        >>> pairs = RepeatedPairs.of(RegistrationSettings())
+        >>> pairs.n_starts == RegistrationSettings().n_starts, pairs.memo
+        (True, {})
+    """
+
+    memo: dict = field(default_factory=dict, compare=False, repr=False)
+
+    @classmethod
+    def of(cls, settings: RegistrationSettings) -> RepeatedPairs:
+        """``settings`` with an empty memory."""
+        return cls(**{f.name: getattr(settings, f.name) for f in fields(RegistrationSettings)})
+
+    def register(self, trees: Any, reference: Any, lambdas: Sequence[float], rotation: str, *,  # noqa: ANN401
+                 positions: str, order_tol: float | None, lp_relative: bool, symmetric: bool) -> list[Any]:
+        """:meth:`RegistrationSettings.register`, remembered for plain :class:`Trees` (module doc)."""
+        args = {"positions": positions, "order_tol": order_tol, "lp_relative": lp_relative, "symmetric": symmetric}
+        if type(trees) is not Trees or type(reference) is not Trees:
+            return super().register(trees, reference, lambdas, rotation, **args)
+        key = (_tree_key(trees), _tree_key(reference), tuple(float(x) for x in lambdas), rotation,
+               *sorted(args.items()))
+        if key not in self.memo:
+            self.memo[key] = super().register(trees, reference, lambdas, rotation, **args)
+        return self.memo[key]
+
+
+def transform_registered(population: Population, sequence: TreeSequence, aligned: AlignedSequence | None
+                         ) -> SequenceEncoding:
+    """``population.transform(sequence, aligned)`` (a task: top-level, picklable)."""
+    return population.transform(sequence, aligned)
+
+
+def encode_plants(population: Population, plants: Sequence[TreeSequence], executor: Executor | None = None,
+                  registration: RegistrationSettings | None = None
+                  ) -> tuple[list[SequenceEncoding], list[AlignedSequence | None]]:
+    """``population.transform_many(plants, executor)`` and each plant's within-sequence registration that it
+    starts with (for :func:`event_rates`), each plant registered once; ``None`` for a plant read at another number
+    of points per branch than the layout's (``transform`` resamples it first) or of one frame. ``registration``:
+    the within-sequence registrations' settings if not the population's own (e.g. :class:`RepeatedPairs` of them).
+
+    Example:
+        >>> from torch4dtree.data.synthetic import synthetic_plant
+        >>> plants = [synthetic_plant("maize", i, n_frames=3, T=8).sequence for i in range(2)]
+        >>> pop = Population(n_t=4, medoid_candidates=1).fit(plants)
+        >>> encs, aligned = encode_plants(pop, plants)
+        >>> [e.trajectory.shape[0] for e in encs], [len(a) for a in aligned]
+        ([4, 4], [3, 3])
+    """
+    device, T = population.ref_points.device, population.ref_points.shape[1]
+    seqs = [s.to(device=device, dtype=torch.float64) for s in plants]
+    mine = [i for i, s in enumerate(seqs) if s.frames.T == T and len(s) >= 2]
+    within = partial(register_sequence, registration=registration or population.registration)
+    done = run_tasks(within, [(seqs[i],) for i in mine], executor, device)
+    aligned: list[AlignedSequence | None] = [None] * len(seqs)
+    for i, a in zip(mine, done):
+        aligned[i] = a
+    if executor is None:
+        encs = [population.transform(s, a) for s, a in zip(seqs, aligned)]
+    else:
+        encs = run_tasks(transform_registered, list(zip(seqs, aligned)), executor, device,
+                         shared=population.portable())
+    return encs, aligned
 
 
 def _read_at(features: Tensor, times: Tensor, at: Tensor) -> Tensor:
@@ -166,12 +255,14 @@ def organ_forecast(paper: FourDTreeModel, organs: OrganModel, plant: TreeSequenc
     observed, at = plant[list(range(half))], plant.times[half:]
     last = TreeSequence(observed.frames[[half - 1] * (n - half)], at.to(observed.times.dtype), plant.name)
     true_final = float(plant.frames[n - 1].total_length()[0])
+    pairs = RepeatedPairs.of(paper.population.registration)  # the observed frames' pairs: searched once
 
     def encoded(guess: TreeSequence) -> tuple[Tensor, float]:
         """The guess's layout features at the plant's forecast times, written with the observed frames, and the
         relative error of its total length at the plant's last time."""
         whole = _whole(observed, guess)
-        feats = _read_at(paper.population.transform(whole).aligned.features().to(truth), whole.times, at)
+        enc = encode_plants(paper.population, [whole], registration=pairs)[0][0]
+        feats = _read_at(enc.aligned.features().to(truth), whole.times, at)
         j = int(torch.searchsorted(whole.times.to(torch.float64).contiguous(),
                                    at[-1].to(torch.float64).reshape(1)).clamp(max=len(whole) - 1))
         return feats, abs(float(whole.frames[j].total_length()[0]) - true_final) / max(true_final, SAME_TIME)
