@@ -10,6 +10,7 @@ import torch
 
 from torch4dtree.data import IdentityScores, relative_warp, synthetic_dataset, synthetic_plant, write_dataset
 from torch4dtree.evaluate import EvalData, EvalSettings, dumps, load_eval_data, truth
+from torch4dtree.settings import SEQUENCE_POSITIONS
 from torch4dtree.trees.registration import ORDER_TOL, effective_lambdas, register_trees
 
 T = 16
@@ -56,7 +57,7 @@ def test_nothing_without_synthetic_data():
 
 def test_within_pair_matches_are_the_registrations(tiny):
     """The matches read back from the chained identity table are those of registering frame j onto j + 1 (with
-    register_sequence's order-preserving children's matching, its default)."""
+    register_sequence's order-preserving children's matching and positions, its defaults)."""
     from torch4dtree.temporal.within import register_sequence
 
     plant = tiny.plants[0]
@@ -66,7 +67,7 @@ def test_within_pair_matches_are_the_registrations(tiny):
     for j in range(len(seq) - 1):
         # as register_sequence registers: lp relative to the next frame, one way
         reg = register_trees(frames[j], frames[j + 1], effective_lambdas((1.0, 1.0, 1.0), frames[j + 1]),
-                             lp_relative=False, order_tol=ORDER_TOL, symmetric=False)
+                             lp_relative=False, order_tol=ORDER_TOL, symmetric=False, positions=SEQUENCE_POSITIONS)
         assert sorted(truth.pair_matches(ident, j)) == sorted(reg.matches)
 
 
