@@ -1,6 +1,7 @@
 """Population's union layout: a branch the reference lacks opens one slot that later plants share; ``max_slots``
 bounds the layout and the registrations onto it, reports the dropped share of the training norm, and leaves a
-population under the bound unchanged."""
+population under the bound unchanged; a new plant's organ the registration leaves unmatched under a matched parent
+takes that parent's free child slot."""
 
 from __future__ import annotations
 
@@ -16,9 +17,10 @@ from torch4dtree.trees.structures import Trees, TreeSequence
 
 T = 32
 # a stem, two leaves every plant has, and two extra leaves: X (plants a, b) and Y (plants c, d), pointing away
-# from each other so that matching X to Y costs more than leaving both null
+# from each other so that matching X to Y costs more than leaving both null; Z (no training plant) sits where X
+# does but points down, so that the registration leaves it unmatched
 LEAVES = {"L1": (0.35, (1.0, 0.0, 0.3)), "L2": (0.65, (0.0, 1.0, 0.3)),
-          "X": (0.5, (-1.0, 0.0, 0.3)), "Y": (0.8, (0.6, -0.8, 0.3))}
+          "X": (0.5, (-1.0, 0.0, 0.3)), "Y": (0.8, (0.6, -0.8, 0.3)), "Z": (0.5, (0.0, 0.0, -1.0))}
 
 
 def _tree(extra: str, size: float, bend: float) -> list[np.ndarray]:
@@ -69,6 +71,26 @@ def test_new_plant_lands_in_an_opened_slot(fitted):
     enc = pop.transform(_plant("e", extra, 0.99, 0.1))
     assert enc.aligned.present[:, 4].all()
     assert float(enc.dropped_sq_norm.max()) < 1e-9
+
+
+def test_an_unmatched_organ_takes_its_parents_free_child_slot(fitted, monkeypatch):
+    """Z, between the two leaves every plant has, is left unmatched by the registration; the X slot between them is
+    free under the same parent, so Z is written there (by place, in order between the matched siblings) instead of
+    being dropped with its whole squared norm."""
+    pop, _ = fitted
+    x_slot = [k for k in range(5) if k not in (0, 1, 2) and abs(float(pop.ref_s[k]) - 0.5) < 1e-9]
+    assert len(x_slot) == 1 and int(pop.ref_parent[x_slot[0]]) == 0
+    new = _plant("z", "Z", 1.0, 0.2)
+    enc = pop.transform(new)
+    assert enc.aligned.present.sum(1).tolist() == [4, 4]
+    assert enc.aligned.present[:, x_slot[0]].all()
+    assert float(enc.dropped_sq_norm.max()) < 1e-9
+    # the registration's matches alone leave Z out: its squared norm (a leaf of length 10) is dropped
+    with monkeypatch.context() as m:
+        m.setattr("torch4dtree.temporal.population.completed_matches", lambda matches, *_: list(matches))
+        alone = pop.transform(new)
+    assert alone.aligned.present.sum(1).tolist() == [3, 3]
+    assert float(alone.dropped_sq_norm.min()) > 5.0
 
 
 def test_union_does_not_depend_on_input_order(fitted):

@@ -27,8 +27,9 @@
 
 :class:`Population` is an ``nn.Module`` holding what is needed to put a *new* 4D tree into the fitted space
 (:meth:`Population.transform`): the union representative (its branch points, one per layout slot), the tree PCA,
-the settings. A new tree's branches that match no slot cannot be written in the layout and are dropped (their
-cost is reported).
+the settings. The registration's matches are completed by place (:func:`completed_matches`: children it left
+unmatched under a matched parent take that slot's free child slots, in order between the matched siblings); a new
+tree's branches that still match no slot cannot be written in the layout and are dropped (their cost is reported).
 """
 
 from __future__ import annotations
@@ -61,6 +62,7 @@ from ..trees.registration import RELATIVE_LP_SCALE, TreeRegistration
 from ..trees.structures import Trees, TreeSequence
 from .spatiotemporal import (
     bounded_slots,
+    completed_matches,
     grow_union,
     open_slots,
     place_sequence,
@@ -483,7 +485,10 @@ class Population(FittedModule):
         ref = self.reference_tree()
         reg = self._register_cross(rep, ref, self.cross_lambdas_)[0]
         S_r = ref.points.shape[0]
-        matched = dict(reg.matches)
+        # children the registration left unmatched under a matched parent take its slot's free child slots in their
+        # order between the matched siblings, by place (as register4d completes its matches)
+        matched = dict(completed_matches(reg.matches, rep.parent.tolist(), ref.parent.tolist(), rep.s.tolist(),
+                                         ref.s.tolist()))
         S_m = aligned.num_slots
         # unmatched slots go to scratch slots past the layout, then are cut off (and their cost reported)
         slot_of, extra = [], S_r
