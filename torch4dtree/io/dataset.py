@@ -30,10 +30,9 @@ from pathlib import Path
 import torch
 
 from ..parallel import run_tasks
-from ..settings import DEFAULT_HIERARCHY, DEFAULT_T, HIERARCHIES, check_choice
+from ..settings import DEFAULT_HIERARCHY, DEFAULT_ROOT, DEFAULT_T, HIERARCHIES, ROOTS, check_choice
 from ..trees.structures import TreeError, Trees, TreeSequence
 from .mat import read_mat_tree
-from .rooting import DEFAULT_ROOT, ROOTS
 from .swc import read_swc, read_swc_skeleton
 
 FRAME_SUFFIXES = (".swc", ".mat")
@@ -59,7 +58,7 @@ class LoadOptions:
             :data:`~torch4dtree.settings.HIERARCHIES` (docs/method.md §2).
         joint_hierarchy: in a sequence of SWC frames, main branches chosen to agree over time
             (:func:`~torch4dtree.trees.growth.consistent_frames`).
-        root: where an SWC skeleton is rooted, one of :data:`~torch4dtree.io.rooting.ROOTS`: ``"auto"`` (default)
+        root: where an SWC skeleton is rooted, one of :data:`~torch4dtree.settings.ROOTS`: ``"auto"`` (default)
             a plant's stem base, with a warning, where the file roots it at a leaf tip hanging below it (a soma or a
             branching root is kept); ``"base"`` the stem base always; ``"file"`` the file's own root
             (:mod:`torch4dtree.io.rooting`). ``.mat`` trees keep theirs.

@@ -10,11 +10,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..settings import DEFAULT_HIERARCHY, DEFAULT_T
+from ..settings import DEFAULT_HIERARCHY, DEFAULT_ROOT, DEFAULT_T
 from ..trees.skeleton import repair_skeleton, skeleton_to_trees, trees_to_skeleton, validate_skeleton
 from ..trees.structures import TreeError, Trees
 from .files import write_text_safely
-from .rooting import DEFAULT_ROOT, choose_root, reroot
+from .rooting import choose_root, reroot
 
 
 class SWCError(TreeError):
@@ -45,7 +45,7 @@ def read_swc_skeleton(path: str | Path, repair: bool = False, root: str = DEFAUL
     :func:`~torch4dtree.trees.skeleton.repair_skeleton`) with a warning instead of an error: one
     published Pheno4D file (tomato_1, March 25) needs it.
 
-    ``root`` (one of :data:`~torch4dtree.io.rooting.ROOTS`) says where the skeleton is rooted: ``"file"`` the
+    ``root`` (one of :data:`~torch4dtree.settings.ROOTS`) says where the skeleton is rooted: ``"file"`` the
     file's own root; ``"base"`` a plant's stem base; ``"auto"`` (default) the stem base unless the file is rooted
     at a soma (type 1) or a branching node, with a warning when it moves (:mod:`torch4dtree.io.rooting`): a scan
     rooted at its lowest node is rooted at a leaf tip when a leaf hangs below the stem base. Only parent links

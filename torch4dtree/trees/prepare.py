@@ -23,7 +23,8 @@ from .matching import order_groups
 from .structures import Trees
 
 __all__ = ["AXIL_OFFSET", "AXIS_CARRIES", "AXIS_MIN_WEIGHT", "MIN_LENGTH", "NODE_POWER", "NODE_SIGNIFICANT",
-           "PreparedTree", "RANK_NODE_TOL", "RANK_SIGNIFICANT", "RankedTree", "child_positions", "prepare_tree"]
+           "PreparedTree", "RANK_NODE_TOL", "RANK_SIGNIFICANT", "RankedTree", "arc_fractions", "child_positions",
+           "prepare_tree"]
 
 # floor of a length used as a divisor: a zero-length branch gives finite positions instead of nan
 MIN_LENGTH = 1e-12
@@ -92,6 +93,30 @@ class PreparedTree:
     norm: np.ndarray  # (N,) recursive subtree squared norms
 
 
+def arc_fractions(q: Tensor, frac: np.ndarray, parent: Sequence[int]) -> np.ndarray:
+    """``(N,)``: each branch's arc length from its parent's base as a fraction of the parent's length, whatever the
+    tree's parameterisation (``|q|^2`` is the speed: cumulative segment lengths give the arc length at each
+    parameter); ``q (N, T - 1, d)`` the branches' SRVFs, ``frac (N,)`` their places as parameters of the parent
+    (a root keeps its own).
+
+    Example (a stem 6 long with a child at height 1.5):
+        >>> z = np.linspace(0, 1, 8)[:, None]
+        >>> tree = Trees.from_branches([[np.hstack([0 * z, 0 * z, 6 * z]), np.hstack([z, 0 * z, 1.5 + 0 * z])]],
+        ...                            [[-1, 0]], T=8)
+        >>> prepared = prepare_tree(tree, (1, 1, 1))
+        >>> arc_fractions(prepared.q, prepared.frac, prepared.parent).round(3).tolist()
+        [0.0, 0.25]
+    """
+    seg = q.square().sum(-1).numpy() / q.shape[1]
+    arc = np.concatenate([np.zeros((len(parent), 1)), np.cumsum(seg, axis=1)], axis=1)
+    grid = np.linspace(0.0, 1.0, arc.shape[1])
+    out = np.array(frac, dtype=np.float64, copy=True)
+    for i, p in enumerate(parent):
+        if p >= 0:
+            out[i] = np.interp(frac[i], grid, arc[p]) / max(float(arc[p, -1]), MIN_LENGTH)
+    return out
+
+
 def prepare_tree(tree: Trees, lambdas: Lambdas, positions: str = "warped") -> PreparedTree:
     """The solver's form of a single tree (``tree.num_trees == 1``), on the CPU in float64.
 
@@ -127,12 +152,7 @@ def prepare_tree(tree: Trees, lambdas: Lambdas, positions: str = "warped") -> Pr
         ch.sort(key=lambda c: s[c])
     lengths = srvf_sq_norm(q).numpy()
     if positions != "warped":  # |q|^2 is the speed: cumulative segment lengths give the arc length at each parameter
-        seg = q.square().sum(-1).numpy() / q.shape[1]
-        arc = np.concatenate([np.zeros((len(parent), 1)), np.cumsum(seg, axis=1)], axis=1)
-        grid = np.linspace(0.0, 1.0, arc.shape[1])
-        for i, p in enumerate(parent):
-            if p >= 0:
-                s[i] = np.interp(s[i], grid, arc[p]) / max(float(arc[p, -1]), MIN_LENGTH)
+        s = arc_fractions(q, frac, parent)
         if isinstance(tree, RankedTree) and tree.ranks_of == positions:
             s = tree.ranks.detach().cpu().to(torch.float64).numpy().copy()
         elif positions in ("rank", "nodes", "closest"):

@@ -20,10 +20,10 @@ from torch import Tensor
 from ..curves.register import DPWarp, dp_warp
 from .aligned import Lambdas
 from .matching import match_children
-from .prepare import MIN_LENGTH, PreparedTree, child_positions
+from .prepare import MIN_LENGTH, PreparedTree, arc_fractions, child_positions
 from .refit import refit_to_children
 
-__all__ = ["Candidate", "LANDMARK_MIN_SHARE", "SERIAL_DP_BELOW", "arc_fractions", "children_positions",
+__all__ = ["Candidate", "LANDMARK_MIN_SHARE", "SERIAL_DP_BELOW", "children_positions",
            "closest_positions", "rotate_rows", "solve"]
 
 
@@ -66,34 +66,10 @@ def rotate_rows(x: Tensor, O: Tensor) -> Tensor:
     return (x.unsqueeze(-2) * O).sum(-1)
 
 
-def arc_fractions(tree: PreparedTree) -> np.ndarray:
-    """``(N,)``: each branch's arc length from its parent's base as a fraction of the parent's length (0 for the
-    root), whatever the tree's parameterisation (``|q|^2`` is the speed).
-
-    Example (a stem 6 long with a child at height 1.5):
-        >>> import numpy as np
-        >>> from torch4dtree import Trees
-        >>> from torch4dtree.trees.prepare import prepare_tree
-        >>> z = np.linspace(0, 1, 8)[:, None]
-        >>> tree = Trees.from_branches([[np.hstack([0 * z, 0 * z, 6 * z]), np.hstack([z, 0 * z, 1.5 + 0 * z])]],
-        ...                            [[-1, 0]], T=8)
-        >>> arc_fractions(prepare_tree(tree, (1, 1, 1), "closest")).round(3).tolist()
-        [0.0, 0.25]
-    """
-    seg = tree.q.square().sum(-1).numpy() / tree.q.shape[1]
-    arc = np.concatenate([np.zeros((len(tree.parent), 1)), np.cumsum(seg, axis=1)], axis=1)
-    grid = np.linspace(0.0, 1.0, arc.shape[1])
-    out = np.zeros(len(tree.parent))
-    for i, p in enumerate(tree.parent):
-        if p >= 0:
-            out[i] = np.interp(tree.frac[i], grid, arc[p]) / max(float(arc[p, -1]), MIN_LENGTH)
-    return out
-
-
 def _arc_candidates(mov: PreparedTree, ref: PreparedTree, a: int, b: int, children: Sequence[int],
                     arc_m: np.ndarray, arc_r: np.ndarray) -> np.ndarray:
     """``(k,)``: moving branch ``a``'s ``children`` placed on reference branch ``b`` by their arc length from the
-    parent's base (``arc_m``, ``arc_r`` the trees' :func:`arc_fractions`), on the scale of the reference children's
+    parent's base (``arc_m``, ``arc_r`` the trees' :func:`.arc_fractions`), on the scale of the reference children's
     ``s``: in the reference parent's length below the main branch (where ``s`` are fractions), as the reference's
     node rank at that arc length on the main branch (linear between its nodes, its mean node spacing beyond them)."""
     x = arc_m[list(children)] * mov.sqrt_len[a] ** 2 / max(float(ref.sqrt_len[b]) ** 2, MIN_LENGTH)
@@ -112,7 +88,7 @@ def children_positions(mov: PreparedTree, ref: PreparedTree, a: int, b: int, sc:
     """``(k1, k2)``: the squared position differences of moving branch ``a``'s children (compared positions
     ``sc (k1,)``, :func:`child_positions`) and reference branch ``b``'s, ``(sc - s_e)^2``.
 
-    ``"closest"`` (``arcs`` the two trees' :func:`arc_fractions`): on the main branch the smaller of the node ranks'
+    ``"closest"`` (``arcs`` the two trees' :func:`.arc_fractions`): on the main branch the smaller of the node ranks'
     difference and the arc lengths' (as node ranks of the reference, :func:`_arc_candidates`), so an organ keeps
     either its node rank (internodes below it elongated) or its distance from the base (the stem grew at its tip
     while a node below it became significant); below the main branch the arc lengths' difference in the reference
@@ -129,7 +105,8 @@ def children_positions(mov: PreparedTree, ref: PreparedTree, a: int, b: int, sc:
         ...     return Trees.from_branches([[np.hstack([0 * z, 0 * z, h * z]), *kids]], [[-1] + [0] * len(at)], T=8)
         >>> later = prepare_tree(plant(6.0, [0.5, 1.0, 2.0, 3.0]), (1, 1, 1), "closest")
         >>> earlier = prepare_tree(plant(4.0, [1.0, 2.0, 3.0]), (1, 1, 1), "closest")
-        >>> sc, arcs = earlier.s[earlier.children[0]], (arc_fractions(earlier), arc_fractions(later))
+        >>> sc, arcs = earlier.s[earlier.children[0]], (arc_fractions(earlier.q, earlier.frac, earlier.parent),
+        ...                           arc_fractions(later.q, later.frac, later.parent))
         >>> own = [0, 1, 2], [1, 2, 3]  # each older child and itself in the later tree
         >>> children_positions(earlier, later, 0, 0, sc, "rank", None)[own].round(2).tolist()
         [0.88, 0.77, 0.67]
@@ -152,7 +129,7 @@ def closest_positions(mov: PreparedTree, ref: PreparedTree, match: dict[int, int
     the main branch; on the main branch whichever of its node rank and that is closer to its partner's. A layout's
     distance with these positions is then the cost the solver minimised."""
     out = compared.copy()
-    arc_m, arc_r = arc_fractions(mov), arc_fractions(ref)
+    arc_m, arc_r = (arc_fractions(t.q, t.frac, t.parent) for t in (mov, ref))
     for a, b in match.items():
         ca = [c for c in mov.children[a] if c in match]
         if not ca:
@@ -186,7 +163,7 @@ def solve(movs: Sequence[PreparedTree], refs: Sequence[PreparedTree], jobs: Sequ
     if positions == "closest":
         for t in [*movs, *refs]:
             if id(t) not in arcs:
-                arcs[id(t)] = arc_fractions(t)
+                arcs[id(t)] = arc_fractions(t.q, t.frac, t.parent)
     # top-down: candidate pairs per depth, one batched DP per depth
     level: list[tuple[int, int, int, float]] = [(k, 0, 0, 0.0) for k in range(len(jobs))]
     levels: list[list[tuple[int, int, int, float]]] = []
