@@ -22,7 +22,7 @@ from torch4dtree.evaluate.figures import (  # noqa: E402
 )
 
 SETTINGS = EvalSettings(T=16, quick=True)
-NAMES = ["registration.png", "geodesic4d.png", "mean.png", "modes.png", "samples.png"]
+NAMES = ["registration.png", "geodesic4d.png", "samples.png", "mean.png", "modes.png", "samples_paper.png"]
 
 
 @pytest.fixture(scope="module")
@@ -76,8 +76,22 @@ def test_grid_figures_have_the_stated_size(written):
     assert 0 < w - lay.columns * lay.cell < 200 and 0 < h - rows * lay.cell < 200
     h, w = _read(path["mean.png"]).shape[:2]
     assert 0 < w - lay.columns * lay.cell < 200 and 0 < h - lay.cell < 200
-    h, w = _read(path["samples.png"]).shape[:2]
+    h, w = _read(path["samples_paper.png"]).shape[:2]
     assert 0 < h - (3 + 3) * lay.cell < 200  # 3 samples above 3 of the plants the model was fitted on
+
+
+def test_samples_figure_shows_generated_above_real_at_the_figure_ages(written):
+    """samples.png: 3 generated plants then the 3 real ones, one row each, one column per age; cells as tall as
+    the plants need (at most the layout's cell), with a label strip each and a scale bar below."""
+    from torch4dtree.evaluate.figures import FIGURE_AGES
+
+    _, files = written
+    lay = figure_layout(SETTINGS)
+    img = _read(dict(zip(NAMES, files))["samples.png"])
+    h, w = img.shape[:2]
+    assert w <= 300 + len(FIGURE_AGES) * lay.cell and h <= 300 + 6 * 1.5 * lay.cell
+    rows_ink = (img < 200).any(-1).any(1)  # rows of pixels with dark ink: plants, labels
+    assert rows_ink[-40:].any()  # the scale bar strip at the bottom
 
 
 def test_registration_figure_matched_branches_share_colours(data, written):
