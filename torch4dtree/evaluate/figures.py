@@ -212,7 +212,8 @@ def samples_figure(model: object, real: Sequence[TreeSequence], path: Path, seed
     generated = model.sample(n, generator=torch.Generator().manual_seed(seed))  # type: ignore[attr-defined]
     shown = list(real)[:n if n_real is None else n_real]
     where = "above" if layout == "rows" else "left of"
-    title = f"generated plants {where} real ones at the same ages; one camera, one scale"
+    title = (f"generated plants {where} real ones at the same ages; one camera, one scale" if shown else
+             "generated plants at the same ages; one camera, one scale")
     img = render_comparison(generated, shown, ages, title=f"{title}\n{note}" if note else title, layout=layout,
                             unit=unit, cell=cell)
     return save_image(path, img)
