@@ -4,6 +4,7 @@
 never needs OpenGL and stays cheap for the command line.
 """
 
+from .compare import render_comparison
 from .frames import (
     branch_colors,
     close_renderer,
@@ -33,6 +34,6 @@ from .options import (
 __all__ = [
     "COLOR_MODES", "GL_PACKAGES", "IMAGE_SUFFIXES", "LABEL_PALETTE", "LAYER_COLORS", "UNLABELLED_COLOR",
     "VIDEO_SUFFIXES", "VIEWS", "RenderOptions", "branch_colors", "close_renderer", "fit_size", "format_time",
-    "interpolate_sequence", "render_grid", "render_sequence", "render_trees", "save_frames", "save_image", "save_video",
-    "tree_meshes",
+    "interpolate_sequence", "render_comparison", "render_grid", "render_sequence", "render_trees", "save_frames",
+    "save_image", "save_video", "tree_meshes",
 ]
