@@ -196,3 +196,13 @@ def per_age(model, train, seeds, n_per, cols=5):
             out.append([(int(n), float(l)) for n, l in zip(f.num_branches, torch.stack([f[i].branch_lengths().sum() for i in range(len(a))]))])
         return out
     return table(train), table(samples)
+
+
+def fit_pheno4d(kind: str, folder: str = "/work/shared/data/pheno4d/mat"):
+    """The default OrganModel fitted on the Pheno4D .mat plants of one kind (tomato T = 64, maize T = 32), and them."""
+    from torch4dtree.io import LoadOptions, read_sequence
+    from torch4dtree.model.organs import OrganModel
+
+    names = [f"tom_{i}_seq" for i in range(1, 6)] if kind == "tomato" else [f"maize0{i}_seq" for i in range(1, 5)]
+    seqs = [read_sequence(Path(folder) / n, LoadOptions(T=64 if kind == "tomato" else 32)).sequence for n in names]
+    return OrganModel().fit(seqs), seqs
