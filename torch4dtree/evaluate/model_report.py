@@ -172,20 +172,13 @@ def _titled(title: str, note: str | None) -> str:
 def write_sample_figure(model: Any, out: Path, size: int, seed: int, n_samples: int = 3, note: str | None = None,
                         real: Sequence[Any] = ()) -> str:
     """``samples.png`` in ``out``: ``n_samples`` samples of ``model`` (either model; ``seed``), one row each, and
-    below them up to as many ``real`` plants (e.g. the training plants), all at the same normalised ages in columns
-    (:func:`age_columns`) and at one scale, so a reader can tell whether the samples look like the real plants
-    (``size`` pixels per cell, ``note`` a second title line). Returns the path written."""
-    import torch
+    below them up to as many ``real`` plants (e.g. the training plants), at the same normalised ages in columns,
+    one camera and one scale, each cell captioned with its time and a scale bar below
+    (:func:`.figures.samples_figure`; ``size`` pixels of a cell's longer side, ``note`` a second title line).
+    Returns the path written."""
+    from .figures import samples_figure
 
-    from ..render import render_grid, save_image
-
-    samples = model.sample(n_samples, generator=torch.Generator().manual_seed(seed))
-    shown = list(real)[:n_samples]
-    title = "samples (top) and real plants (bottom) at the same ages, one scale" if shown else "samples over time"
-    img = render_grid([age_columns(s) for s in [*samples, *shown]],
-                      row_labels=[s.name for s in samples] + [f"real: {s.name}" for s in shown],
-                      title=_titled(title, note), size=size, color="layer" if shown else "label")  # alike
-    return str(save_image(out / "samples.png", img))
+    return str(samples_figure(model, real, out / "samples.png", seed, n_samples, note=note, cell=size))
 
 
 def write_model_figures(model: Any, out: Path, size: int, seed: int, n_samples: int = 3, note: str | None = None,
