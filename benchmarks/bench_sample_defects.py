@@ -69,7 +69,7 @@ def frame_stats(tree: Trees) -> dict[str, Any]:
     s = tree.s.double()
     L = tree.branch_lengths().double()
     n = len(par)
-    depth = tree.depth().tolist()
+    depth = tree.depth.tolist()
     out: dict[str, Any] = {"len1": [float(L[i]) for i in range(n) if depth[i] == 1],
                            "len2": [float(L[i]) for i in range(n) if depth[i] == 2],
                            "main": float(L[0]), "total": float(L.sum()), "n": n,
