@@ -40,6 +40,8 @@ BASE_FRACTION = 0.1  # a child's base direction: from its first point to 10 % of
 CROSS_FROM = 0.15  # crossings are looked for from 15 % of each branch's length (away from the shared bases)
 CROSS_POINTS = 48  # points per branch in the crossing test
 CROSS_TOL = 0.01  # two branches cross when they come within 1 % of the plant's size
+SAME_NODE = 1e-6  # siblings whose attachments differ by less than this share one node (they touch at their bases)
+TINY = 1e-12  # keeps angles defined for zero-length vectors
 SHRINK = 0.95  # an organ shrinks when it is more than 5 % shorter at the next frame
 KS_MEASURES = ("l1", "ins", "elev", "div", "pmax", "cross")
 BEYOND_MEASURES = ("ratio", "cross_organ")
@@ -84,13 +86,13 @@ def frame_stats(tree: Trees) -> dict[str, Any]:
         k = int(torch.searchsorted(cum, BASE_FRACTION * cum[-1]).clamp(1, len(c) - 1))
         d = c[k] - c[0]
         pc = pts[p]
-        pcum = cumulative_length(pc) / max(float(L[p]), 1e-12)
+        pcum = cumulative_length(pc) / max(float(L[p]), TINY)
         j = int(torch.searchsorted(pcum, s[i].clamp(0, 1)).clamp(1, len(pc) - 1))
         t = pc[j] - pc[j - 1]
-        cosang = float((d @ t) / (d.norm() * t.norm() + 1e-12))
+        cosang = float((d @ t) / (d.norm() * t.norm() + TINY))
         ins.append(math.degrees(math.acos(max(-1, min(1, cosang)))))
         ch = c[-1] - c[0]
-        elev.append(math.degrees(math.atan2(float(ch[UP]), float(ch[:2].norm()) + 1e-12)))
+        elev.append(math.degrees(math.atan2(float(ch[UP]), float(ch[:2].norm()) + TINY)))
         if p == 0:
             az.append((float(s[i]), math.atan2(float(ch[1]), float(ch[0]))))
     az.sort()
@@ -105,7 +107,7 @@ def frame_stats(tree: Trees) -> dict[str, Any]:
         D = torch.cdist(flat, flat).reshape(n, CROSS_POINTS, n, CROSS_POINTS).amin((1, 3))
         for i in range(n):
             for j in range(i + 1, n):
-                if par[j] == i or par[i] == j or (par[i] == par[j] and abs(float(s[i] - s[j])) < 1e-6):
+                if par[j] == i or par[i] == j or (par[i] == par[j] and abs(float(s[i] - s[j])) < SAME_NODE):
                     continue
                 if D[i, j] < tol:
                     cross += 1
