@@ -66,13 +66,26 @@ def rotate_rows(x: Tensor, O: Tensor) -> Tensor:
     return (x.unsqueeze(-2) * O).sum(-1)
 
 
-def _arc_candidates(mov: PreparedTree, ref: PreparedTree, a: int, b: int, children: Sequence[int],
-                    arc_m: np.ndarray, arc_r: np.ndarray) -> np.ndarray:
-    """``(k,)``: moving branch ``a``'s ``children`` placed on reference branch ``b`` by their arc length from the
-    parent's base (``arc_m``, ``arc_r`` the trees' :func:`.arc_fractions`), on the scale of the reference children's
-    ``s``: in the reference parent's length below the main branch (where ``s`` are fractions), as the reference's
-    node rank at that arc length on the main branch (linear between its nodes, its mean node spacing beyond them)."""
-    x = arc_m[list(children)] * mov.sqrt_len[a] ** 2 / max(float(ref.sqrt_len[b]) ** 2, MIN_LENGTH)
+# "closest" positions: which places of a moving child are compared with its partner's (experiment switches)
+CLOSEST_MAIN = ("rank", "arc", "frac")
+CLOSEST_BELOW = ("arc", "frac")
+
+
+def _place_candidates(mov: PreparedTree, ref: PreparedTree, a: int, b: int, children: Sequence[int],
+                      arc_m: np.ndarray, arc_r: np.ndarray, kinds: Sequence[str]) -> np.ndarray:
+    """``(len(kinds), k)``: moving branch ``a``'s ``children`` placed on reference branch ``b`` (``arc_m``, ``arc_r``
+    the trees' :func:`.arc_fractions`), on the scale of the reference children's ``s``: ``"arc"`` by their arc length
+    from the parent's base (in the reference parent's length), ``"frac"`` by their fraction of the parent's length
+    (the parent elongated evenly below and above them); on the main branch each is read as the reference's node rank
+    at that place (linear between its nodes, its mean node spacing beyond them), elsewhere it is a fraction."""
+    f = arc_m[list(children)]
+    rows = []
+    for kind in kinds:
+        if kind == "arc":
+            rows.append(f * mov.sqrt_len[a] ** 2 / max(float(ref.sqrt_len[b]) ** 2, MIN_LENGTH))
+        elif kind == "frac":
+            rows.append(f)
+    x = np.array(rows, dtype=np.float64).reshape(len(rows), len(f))
     cb = ref.children[b]
     if a != 0 or not cb:
         return x
@@ -83,16 +96,23 @@ def _arc_candidates(mov: PreparedTree, ref: PreparedTree, a: int, b: int, childr
                     np.where(x > xr[-1], sr[-1] + (x - xr[-1]) / spacing, inside))
 
 
+def _kinds(a: int) -> tuple[tuple[str, ...], bool]:
+    """The place candidates compared below / on the main branch, and whether node ranks are one of them."""
+    kinds = CLOSEST_MAIN if a == 0 else CLOSEST_BELOW
+    return tuple(k for k in kinds if k != "rank"), "rank" in kinds
+
+
 def children_positions(mov: PreparedTree, ref: PreparedTree, a: int, b: int, sc: np.ndarray, positions: str,
                        arcs: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray:
     """``(k1, k2)``: the squared position differences of moving branch ``a``'s children (compared positions
     ``sc (k1,)``, :func:`child_positions`) and reference branch ``b``'s, ``(sc - s_e)^2``.
 
-    ``"closest"`` (``arcs`` the two trees' :func:`.arc_fractions`): on the main branch the smaller of the node ranks'
-    difference and the arc lengths' (as node ranks of the reference, :func:`_arc_candidates`), so an organ keeps
-    either its node rank (internodes below it elongated) or its distance from the base (the stem grew at its tip
-    while a node below it became significant); below the main branch the arc lengths' difference in the reference
-    parent's length (woody axes and a simulator's organs grow at their tip).
+    ``"closest"`` (``arcs`` the two trees' :func:`.arc_fractions`): on the main branch the smallest of the node
+    ranks' difference, the arc lengths' and the fractions' (as node ranks of the reference, :func:`_place_candidates`),
+    so an organ keeps its node rank (internodes below it elongated), its distance from the base (the stem grew at its
+    tip while a node below it became significant) or its share of the stem (the stem elongated throughout); below the
+    main branch the arc lengths' difference in the reference parent's length (woody axes and a simulator's organs
+    grow at their tip).
 
     Example (a stem grows at its tip from 4 to 6 while a child appears at 0.5: every older child's node rank rises
     by one, its height stays):
@@ -117,26 +137,30 @@ def children_positions(mov: PreparedTree, ref: PreparedTree, a: int, b: int, sc:
     d2 = (sc[:, None] - s_ref) ** 2
     if positions != "closest" or arcs is None:
         return d2
-    d2_arc = (_arc_candidates(mov, ref, a, b, mov.children[a], *arcs)[:, None] - s_ref) ** 2
-    return np.minimum(d2, d2_arc) if a == 0 else d2_arc
+    kinds, rank = _kinds(a)
+    alt = _place_candidates(mov, ref, a, b, mov.children[a], *arcs, kinds)
+    d2_alt = ((alt[:, :, None] - s_ref[None]) ** 2).min(0)
+    return np.minimum(d2, d2_alt) if rank else d2_alt
 
 
 def closest_positions(mov: PreparedTree, ref: PreparedTree, match: dict[int, int], compared: np.ndarray
                       ) -> np.ndarray:
     """``(Nm,)``: for ``"closest"`` positions, the moving tree's compared positions ``compared (Nm,)``
     (:func:`child_positions` on the matched parents) replaced, for every matched child of a matched parent, by the
-    place the solver compared it at (:func:`children_positions`): its arc length on the partner parent's scale below
-    the main branch; on the main branch whichever of its node rank and that is closer to its partner's. A layout's
-    distance with these positions is then the cost the solver minimised."""
+    place the solver compared it at (:func:`children_positions`): whichever of its candidate places is closest to
+    its partner's. A layout's distance with these positions is then the cost the solver minimised."""
     out = compared.copy()
     arc_m, arc_r = (arc_fractions(t.q, t.frac, t.parent) for t in (mov, ref))
     for a, b in match.items():
         ca = [c for c in mov.children[a] if c in match]
         if not ca:
             continue
-        alt = _arc_candidates(mov, ref, a, b, ca, arc_m, arc_r)
+        kinds, rank = _kinds(a)
+        alt = _place_candidates(mov, ref, a, b, ca, arc_m, arc_r, kinds)
+        if rank:
+            alt = np.concatenate([out[ca][None], alt])
         targets = ref.s[[match[c] for c in ca]]
-        out[ca] = np.where(np.abs(alt - targets) < np.abs(out[ca] - targets), alt, out[ca]) if a == 0 else alt
+        out[ca] = alt[np.abs(alt - targets[None]).argmin(0), np.arange(len(ca))]
     return out
 
 
