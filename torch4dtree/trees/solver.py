@@ -69,6 +69,7 @@ def rotate_rows(x: Tensor, O: Tensor) -> Tensor:
 # "closest" positions: which places of a moving child are compared with its partner's (experiment switches)
 CLOSEST_MAIN = ("rank", "arc", "frac")
 CLOSEST_BELOW = ("arc", "frac")
+FRAC_GROWTH_MAX = 1.3  # fractions on the main branch only where it grew by at most this factor
 
 
 def _place_candidates(mov: PreparedTree, ref: PreparedTree, a: int, b: int, children: Sequence[int],
@@ -96,9 +97,13 @@ def _place_candidates(mov: PreparedTree, ref: PreparedTree, a: int, b: int, chil
                     np.where(x > xr[-1], sr[-1] + (x - xr[-1]) / spacing, inside))
 
 
-def _kinds(a: int) -> tuple[tuple[str, ...], bool]:
+def _kinds(mov: PreparedTree, ref: PreparedTree, a: int, b: int) -> tuple[tuple[str, ...], bool]:
     """The place candidates compared below / on the main branch, and whether node ranks are one of them."""
     kinds = CLOSEST_MAIN if a == 0 else CLOSEST_BELOW
+    if a == 0:
+        grew = float(ref.sqrt_len[b]) ** 2 / max(float(mov.sqrt_len[a]) ** 2, MIN_LENGTH)
+        if max(grew, 1.0 / max(grew, MIN_LENGTH)) > FRAC_GROWTH_MAX:
+            kinds = tuple(k for k in kinds if k != "frac")
     return tuple(k for k in kinds if k != "rank"), "rank" in kinds
 
 
@@ -137,7 +142,7 @@ def children_positions(mov: PreparedTree, ref: PreparedTree, a: int, b: int, sc:
     d2 = (sc[:, None] - s_ref) ** 2
     if positions != "closest" or arcs is None:
         return d2
-    kinds, rank = _kinds(a)
+    kinds, rank = _kinds(mov, ref, a, b)
     alt = _place_candidates(mov, ref, a, b, mov.children[a], *arcs, kinds)
     d2_alt = ((alt[:, :, None] - s_ref[None]) ** 2).min(0)
     return np.minimum(d2, d2_alt) if rank else d2_alt
@@ -155,7 +160,7 @@ def closest_positions(mov: PreparedTree, ref: PreparedTree, match: dict[int, int
         ca = [c for c in mov.children[a] if c in match]
         if not ca:
             continue
-        kinds, rank = _kinds(a)
+        kinds, rank = _kinds(mov, ref, a, b)
         alt = _place_candidates(mov, ref, a, b, ca, arc_m, arc_r, kinds)
         if rank:
             alt = np.concatenate([out[ca][None], alt])
