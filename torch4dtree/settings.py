@@ -50,8 +50,9 @@ DEFAULT_ROOT = "auto"
 
 DEFAULT_T = 64  # points per branch
 DEFAULT_POSITIONS = "rank"  # pair registrations
-# one plant's frames (register_sequence): an organ keeps its node rank or its arc length on the main branch, arc lengths
-# below it (docs/method.md §3): elongating internodes and axes that grow at their tip both keep identities
+# one plant's frames (register_sequence): an organ keeps its node rank, its arc length or (a stem that grew little) its
+# share of the stem on the main branch, its arc length or share below it (docs/method.md §3): elongating internodes,
+# axes that grow at their tip and axes that elongate throughout all keep identities
 SEQUENCE_POSITIONS = "closest"
 DEFAULT_NT = 32  # common time samples of a trajectory
 # the population's union layout keeps at most this many slots (the ones carrying the most of the training frames'

@@ -23,7 +23,7 @@ from .matching import match_children
 from .prepare import MIN_LENGTH, PreparedTree, arc_fractions, child_positions
 from .refit import refit_to_children
 
-__all__ = ["Candidate", "LANDMARK_MIN_SHARE", "SERIAL_DP_BELOW", "children_positions",
+__all__ = ["Candidate", "FRACTION_GROWTH_MAX", "LANDMARK_MIN_SHARE", "SERIAL_DP_BELOW", "children_positions",
            "closest_positions", "rotate_rows", "solve"]
 
 
@@ -66,13 +66,24 @@ def rotate_rows(x: Tensor, O: Tensor) -> Tensor:
     return (x.unsqueeze(-2) * O).sum(-1)
 
 
-def _arc_candidates(mov: PreparedTree, ref: PreparedTree, a: int, b: int, children: Sequence[int],
-                    arc_m: np.ndarray, arc_r: np.ndarray) -> np.ndarray:
-    """``(k,)``: moving branch ``a``'s ``children`` placed on reference branch ``b`` by their arc length from the
-    parent's base (``arc_m``, ``arc_r`` the trees' :func:`.arc_fractions`), on the scale of the reference children's
-    ``s``: in the reference parent's length below the main branch (where ``s`` are fractions), as the reference's
-    node rank at that arc length on the main branch (linear between its nodes, its mean node spacing beyond them)."""
-    x = arc_m[list(children)] * mov.sqrt_len[a] ** 2 / max(float(ref.sqrt_len[b]) ** 2, MIN_LENGTH)
+# "closest" positions compare a main-branch child's share of the stem only where the stem grew by at most this factor
+# between the two trees (either way): where it grew more (sparse frames of an elongating stem) node ranks hold and a
+# share moves onto a neighbour's, while a stem that grows a little throughout keeps its organs' shares
+# (docs/experiments.md)
+FRACTION_GROWTH_MAX = 1.3
+
+
+def _place_candidates(mov: PreparedTree, ref: PreparedTree, a: int, b: int, children: Sequence[int],
+                      arc_m: np.ndarray, arc_r: np.ndarray) -> np.ndarray:
+    """``(c, k)``: moving branch ``a``'s ``children`` placed on reference branch ``b`` (``arc_m``, ``arc_r`` the
+    trees' :func:`.arc_fractions`), on the scale of the reference children's ``s``: row 0 by their arc length from
+    the parent's base (in the reference parent's length; the parent grew at its tip), row 1 (``c = 2``, see
+    :func:`_compares_fractions`) by their fraction of the parent's length (the parent elongated evenly). On the main
+    branch each is read as the reference's node rank at that place (linear between its nodes, its mean node spacing
+    beyond them), elsewhere it is a fraction."""
+    f = arc_m[list(children)]
+    x = f * mov.sqrt_len[a] ** 2 / max(float(ref.sqrt_len[b]) ** 2, MIN_LENGTH)
+    x = np.stack([x, f]) if _compares_fractions(mov, ref, a, b) else x[None]
     cb = ref.children[b]
     if a != 0 or not cb:
         return x
@@ -83,16 +94,27 @@ def _arc_candidates(mov: PreparedTree, ref: PreparedTree, a: int, b: int, childr
                     np.where(x > xr[-1], sr[-1] + (x - xr[-1]) / spacing, inside))
 
 
+def _compares_fractions(mov: PreparedTree, ref: PreparedTree, a: int, b: int) -> bool:
+    """Whether ``"closest"`` compares the children's fractions of branches ``a`` and ``b``: below the main branch
+    always, on it where it grew by at most :data:`FRACTION_GROWTH_MAX` (either way)."""
+    if a != 0:
+        return True
+    grew = float(ref.sqrt_len[b]) ** 2 / max(float(mov.sqrt_len[a]) ** 2, MIN_LENGTH)
+    return 1.0 / FRACTION_GROWTH_MAX <= grew <= FRACTION_GROWTH_MAX
+
+
 def children_positions(mov: PreparedTree, ref: PreparedTree, a: int, b: int, sc: np.ndarray, positions: str,
                        arcs: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray:
     """``(k1, k2)``: the squared position differences of moving branch ``a``'s children (compared positions
     ``sc (k1,)``, :func:`child_positions`) and reference branch ``b``'s, ``(sc - s_e)^2``.
 
-    ``"closest"`` (``arcs`` the two trees' :func:`.arc_fractions`): on the main branch the smaller of the node ranks'
-    difference and the arc lengths' (as node ranks of the reference, :func:`_arc_candidates`), so an organ keeps
-    either its node rank (internodes below it elongated) or its distance from the base (the stem grew at its tip
-    while a node below it became significant); below the main branch the arc lengths' difference in the reference
-    parent's length (woody axes and a simulator's organs grow at their tip).
+    ``"closest"`` (``arcs`` the two trees' :func:`.arc_fractions`): on the main branch the smallest of the node
+    ranks' difference, the arc lengths' and, where the stem grew by at most :data:`FRACTION_GROWTH_MAX`, the
+    fractions' (as node ranks of the reference, :func:`_place_candidates`), so an organ keeps its node rank
+    (internodes below it elongated), its distance from the base (the stem grew at its tip while a node below it
+    became significant) or its share of the stem (the stem elongated throughout); below the main branch the smaller
+    of the arc lengths' difference in the reference parent's length (woody axes and a simulator's organs grow at
+    their tip) and the fractions' (the parent elongated throughout).
 
     Example (a stem grows at its tip from 4 to 6 while a child appears at 0.5: every older child's node rank rises
     by one, its height stays):
@@ -117,26 +139,28 @@ def children_positions(mov: PreparedTree, ref: PreparedTree, a: int, b: int, sc:
     d2 = (sc[:, None] - s_ref) ** 2
     if positions != "closest" or arcs is None:
         return d2
-    d2_arc = (_arc_candidates(mov, ref, a, b, mov.children[a], *arcs)[:, None] - s_ref) ** 2
-    return np.minimum(d2, d2_arc) if a == 0 else d2_arc
+    alt = _place_candidates(mov, ref, a, b, mov.children[a], *arcs)
+    d2_alt = ((alt[:, :, None] - s_ref[None]) ** 2).min(0)
+    return np.minimum(d2, d2_alt) if a == 0 else d2_alt
 
 
 def closest_positions(mov: PreparedTree, ref: PreparedTree, match: dict[int, int], compared: np.ndarray
                       ) -> np.ndarray:
     """``(Nm,)``: for ``"closest"`` positions, the moving tree's compared positions ``compared (Nm,)``
     (:func:`child_positions` on the matched parents) replaced, for every matched child of a matched parent, by the
-    place the solver compared it at (:func:`children_positions`): its arc length on the partner parent's scale below
-    the main branch; on the main branch whichever of its node rank and that is closer to its partner's. A layout's
-    distance with these positions is then the cost the solver minimised."""
+    place the solver compared it at (:func:`children_positions`): whichever of its candidate places is closest to
+    its partner's. A layout's distance with these positions is then the cost the solver minimised."""
     out = compared.copy()
     arc_m, arc_r = (arc_fractions(t.q, t.frac, t.parent) for t in (mov, ref))
     for a, b in match.items():
         ca = [c for c in mov.children[a] if c in match]
         if not ca:
             continue
-        alt = _arc_candidates(mov, ref, a, b, ca, arc_m, arc_r)
+        alt = _place_candidates(mov, ref, a, b, ca, arc_m, arc_r)
+        if a == 0:  # node ranks are a candidate on the main branch
+            alt = np.concatenate([out[ca][None], alt])
         targets = ref.s[[match[c] for c in ca]]
-        out[ca] = np.where(np.abs(alt - targets) < np.abs(out[ca] - targets), alt, out[ca]) if a == 0 else alt
+        out[ca] = alt[np.abs(alt - targets[None]).argmin(0), np.arange(len(ca))]
     return out
 
 
