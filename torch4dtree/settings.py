@@ -36,7 +36,7 @@ ROTATIONS = ("none", "vertical", "so3")
 # how two trees' matched children are compared: the parent's warp, arc length, node rank on the main branch or on every
 # branch (docs/method.md §3)
 POSITIONS = ("warped", "arclength", "rank",
-             "closest",  # main branch: the closer of node rank and arc length; below: arc length (one plant's frames)
+             "closest",  # the closest of node rank, arc length and share of the parent (one plant's frames)
              "nodes")
 # skeleton -> branch hierarchy: which child continues a branch at a branch point (docs/method.md §2)
 HIERARCHIES = ("straightest", "heaviest", "longest", "continuation")
