@@ -1,5 +1,5 @@
 """The forecast's point in a slot layout (model/organ_forecast.py ``forecast_point``): the continuations' mean at the
-observed plant's slots, the population's expectation elsewhere."""
+observed plant's slots, their average with the population's expectation elsewhere."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import pytest
 import torch
 from torch import Tensor
 
-from torch4dtree.model.organ_forecast import forecast_point
+from torch4dtree.model.organ_forecast import NEW_SLOT_WEIGHT, forecast_point, seen_slots
 
 SLOTS, PER_SLOT, FRAMES, DRAWS, PLANTS = 12, 3, 2, 8, 400
 OLD = SLOTS // 2  # slots 0 .. OLD - 1 may hold observed organs, the others only new ones
@@ -64,16 +64,20 @@ def error(x: Tensor, truth: Tensor) -> Tensor:
     return (x - truth).norm(dim=-1).mean(-1)
 
 
-def test_the_point_takes_the_continuations_at_seen_slots_and_the_prior_elsewhere() -> None:
+def test_the_point_takes_the_continuations_at_seen_slots_and_their_blend_with_the_prior_elsewhere() -> None:
     g = torch.Generator().manual_seed(0)
     draws = torch.randn(3, FRAMES, SLOTS * PER_SLOT + SLOTS - 1, generator=g, dtype=torch.float64)
     prior = torch.randn(FRAMES, SLOTS * PER_SLOT + SLOTS - 1, generator=g, dtype=torch.float64)
     seen = torch.rand(FRAMES, SLOTS, generator=g) < 0.5
     point = forecast_point(draws, seen, prior)
+    assert torch.equal(forecast_point(draws, seen, prior, weight=1.0), draws.mean(0))
+    assert torch.equal(seen_slots(point, SLOTS), point[:, :SLOTS * PER_SLOT].reshape(FRAMES, SLOTS, -1).ne(0).any(-1))
+    w = NEW_SLOT_WEIGHT
+    blend = w * draws.mean(0) + (1 - w) * prior
     q, s = point[:, :SLOTS * PER_SLOT].reshape(FRAMES, SLOTS, PER_SLOT), point[:, SLOTS * PER_SLOT:]
     mean = draws.mean(0)
     mq, ms = mean[:, :SLOTS * PER_SLOT].reshape(FRAMES, SLOTS, PER_SLOT), mean[:, SLOTS * PER_SLOT:]
-    pq, ps = prior[:, :SLOTS * PER_SLOT].reshape(FRAMES, SLOTS, PER_SLOT), prior[:, SLOTS * PER_SLOT:]
+    pq, ps = blend[:, :SLOTS * PER_SLOT].reshape(FRAMES, SLOTS, PER_SLOT), blend[:, SLOTS * PER_SLOT:]
     assert torch.equal(q[seen], mq[seen]) and torch.equal(q[~seen], pq[~seen])
     assert torch.equal(s[seen[:, 1:]], ms[seen[:, 1:]]) and torch.equal(s[~seen[:, 1:]], ps[~seen[:, 1:]])
     assert torch.equal(forecast_point(draws, torch.ones_like(seen), prior), mean)
@@ -88,5 +92,6 @@ def test_the_point_beats_the_population_mean_where_the_observed_half_tells() -> 
     to_draws = error(draws.mean(1), truth)
     # the observed organs' future is known: the point beats the population's mean on (nearly) every plant with one
     assert float((to_point < to_prior).double().mean()) >= 0.95
-    # where new organs appear is not: the population's expectation there beats a few continuations' mean
+    # where new organs appear is not: blended with the population's expectation there, the point beats a few
+    # continuations' mean
     assert float(to_point.mean()) < float(to_draws.mean())
