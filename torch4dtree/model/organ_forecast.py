@@ -23,6 +23,9 @@ the donor's latest (by rank along the parent). All growth after the observed age
 and the new organs) is scaled by one factor so that the final frame's total length is the drawn one (the draw is
 met unless it is below the length of the observed organs that remain): one factor for all growth keeps every organ
 near its donor organ's size. Observed organs at keys no training plant has stay as seen.
+
+The forecast's **point** in a slot layout (:func:`forecast_point`): the continuations' mean at the slots where the
+observed plant has an organ, averaged with the population's expectation at every other slot.
 """
 
 from __future__ import annotations
