@@ -23,6 +23,9 @@ the donor's latest (by rank along the parent). All growth after the observed age
 and the new organs) is scaled by one factor so that the final frame's total length is the drawn one (the draw is
 met unless it is below the length of the observed organs that remain): one factor for all growth keeps every organ
 near its donor organ's size. Observed organs at keys no training plant has stay as seen.
+
+The forecast's **point** in a slot layout (:func:`forecast_point`): the continuations' mean at the slots where the
+observed plant has an organ, averaged with the population's expectation at every other slot.
 """
 
 from __future__ import annotations
@@ -38,13 +41,16 @@ from ..trees.structures import TreeSequence
 from .organ_table import azimuth, plant_organs
 from .organs import OrganModel, assemble_frames, carry_parents, rotate_about_up
 
-__all__ = ["ForecastDistribution", "forecast_distribution", "forecast_organs"]
+__all__ = ["ForecastDistribution", "forecast_distribution", "forecast_organs", "forecast_point", "seen_slots"]
 
 # the donor kernel's widths (standard deviations of size and organ count at the observed age) that the forecast
 # chooses from by leave-one-out over the training plants; the widest is nearly the population as a whole
 BANDWIDTHS = (0.25, 0.5, 1.0, 2.0, 4.0)
 # a continuation whose organs add no length after the observed age (nothing left to grow) keeps the observed size
 NO_GROWTH = 1e-12
+# the continuations' share of the forecast point at slots the observed plant has no organ in (forecast_point): an
+# equal average of their mean and the population's; chosen on held-out tomato, bean and maize (docs/experiments.md)
+NEW_SLOT_WEIGHT = 0.5
 
 
 @dataclass
@@ -311,3 +317,54 @@ def _continuation(model: OrganModel, observed: dict[tuple[int, ...], dict], dono
     carried = carry_parents(torch.stack([sizes[m] for m in range(len(fixed))])[None], torch.tensor(parent), depth)[0]
     return assemble_frames(dict(enumerate(carried)), dict(enumerate(shapes)), dict(enumerate(s)),
                            torch.tensor(parent), model.times().clone(), name)
+
+
+def forecast_point(draws: Tensor, seen: Tensor, prior: Tensor, weight: float = NEW_SLOT_WEIGHT) -> Tensor:
+    """The forecast's point in a slot layout (features as :meth:`~torch4dtree.trees.aligned.AlignedTrees.features`:
+    each of ``S`` slots' SRVF values, then the positions of slots ``1 .. S - 1``): per slot and frame, the mean of
+    the continuations where the observed plant has that organ; at every other slot, ``weight`` times that mean plus
+    ``1 - weight`` times the population's ``prior`` there.
+
+    Why: an observed organ's future is the plant's own (its continuations carry it at its slot, their mean is its
+    conditional expectation), while a new organ's slot is uncertain: a few continuations put it at a few donors'
+    slots at full norm, farther in the tree metric than the population's expectation of each slot at that age;
+    the two are averaged there (docs/method.md §5, forecasting).
+
+    Args:
+        draws: ``(K, m, F)`` the continuations' features at the ``m`` forecast frames (``K >= 1``).
+        seen: ``(m, S)`` bool, the slots where the observed plant has an organ (its last observed frame carried to
+            the forecast frames, written in the layout as the continuations are).
+        prior: ``(m, F)`` the population's features at the same ages (e.g. the 4D mean).
+        weight: the continuations' share at the slots not seen (1: their mean everywhere; 0: the prior there).
+
+    Returns:
+        ``(m, F)`` the point.
+
+    Example:
+        >>> draws = torch.tensor([[[1.0, 1.0, 2.0, 2.0, 0.5]], [[3.0, 3.0, 0.0, 0.0, 0.7]]])  # K=2, m=1, S=2
+        >>> forecast_point(draws, torch.tensor([[True, False]]), torch.full((1, 5), 0.1))
+        tensor([[2.0000, 2.0000, 0.5500, 0.5500, 0.3500]])
+    """
+    if draws.dim() != 3 or draws.shape[0] < 1 or prior.shape != draws.shape[1:]:
+        raise ValueError(f"draws must be (K >= 1, m, F) and prior (m, F), got {tuple(draws.shape)} and "
+                         f"{tuple(prior.shape)}")
+    m, S = seen.shape
+    F = draws.shape[-1]
+    if seen.shape[0] != draws.shape[1] or F < S - 1 or (F - (S - 1)) % S:
+        raise ValueError(f"seen {tuple(seen.shape)} does not match features of {F} values in {m} frames")
+    per_slot = (F - (S - 1)) // S
+    keep = torch.cat([seen.repeat_interleave(per_slot, dim=1), seen[:, 1:]], dim=1)  # (m, F)
+    mean = draws.mean(0)
+    return torch.where(keep, mean, weight * mean + (1 - weight) * prior.to(draws))
+
+
+def seen_slots(features: Tensor, slots: int) -> Tensor:
+    """``(m, S)`` bool: the slots with an organ (a nonzero SRVF) in layout features ``(m, F)`` of ``S = slots``
+    slots, e.g. of the observed plant's last frame carried to the forecast frames (:func:`forecast_point`).
+
+    Example:
+        >>> seen_slots(torch.tensor([[1.0, 0.0, 0.0, 0.0, 0.3]]), 2)
+        tensor([[ True, False]])
+    """
+    per_slot = (features.shape[-1] - (slots - 1)) // slots
+    return features[..., :slots * per_slot].reshape(*features.shape[:-1], slots, per_slot).ne(0).any(-1)
