@@ -5,7 +5,7 @@ its stated :func:`forecast_distribution`), and their checkpoints (``save_model``
 from ..settings import OrganSettings
 from .checkpoint import CheckpointError, load, save_model
 from .fourd import Forecast, FourDTreeModel, ModelOutput, Score, sequence_validity
-from .organ_forecast import ForecastDistribution, forecast_distribution, forecast_organs
+from .organ_forecast import ForecastDistribution, forecast_distribution, forecast_organs, forecast_point, seen_slots
 from .organs import OrganModel, OrganModelError
 from .sampler import TruncatedNormalSampler, truncated_normal_variance
 from .trajectory import TrajectoryMean, TrajectoryPCA, flatten_srvf, unflatten_srvf
@@ -13,6 +13,6 @@ from .trajectory import TrajectoryMean, TrajectoryPCA, flatten_srvf, unflatten_s
 __all__ = [
     "CheckpointError", "Forecast", "ForecastDistribution", "FourDTreeModel", "ModelOutput", "OrganModel",
     "OrganModelError", "OrganSettings", "Score", "TrajectoryMean", "TrajectoryPCA", "TruncatedNormalSampler",
-    "flatten_srvf", "forecast_distribution", "forecast_organs", "load", "save_model", "sequence_validity",
-    "truncated_normal_variance", "unflatten_srvf",
+    "flatten_srvf", "forecast_distribution", "forecast_organs", "forecast_point", "load", "save_model", "seen_slots",
+    "sequence_validity", "truncated_normal_variance", "unflatten_srvf",
 ]
