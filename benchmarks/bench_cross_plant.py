@@ -4,12 +4,13 @@ Sets: ``synthetic_plant(kind, seed)`` for seeds 0-5 (``p0``, = ``identity_accura
 ``synthetic_dataset(kind, 6, 0)`` (``d0``) and ``(kind, 6, 1)`` (``d1``); every pair of the 6 plants at each frame
 (3, 6, 9 of 10), T = 32, vertical rotation: 45 pairs per set and frame list.
 
-    PYTHONPATH=. python benchmarks/bench_cross_plant.py KIND [--positions rank] [--lp 12] [--order-tol 0.02]
+    PYTHONPATH=. python benchmarks/bench_cross_plant.py KIND [--positions nodes] [--lp 100] [--order-tol 0.02]
         [--frames 3,6,9] [--sets p0,p6,d0,d1] [--processes 2]
 
-Defaults: :func:`torch4dtree.bench.hierarchy.registration_settings` (the cross-plant setting). ``--order-tol -1``:
-any-order children's matching; ``--positions nodes --lp 100``: the simulator plants' setting
-(``benchmarks/bench_cross_simulator.py``). Prints pooled precision / recall % per set, overall and per set and frame.
+Defaults: :func:`torch4dtree.bench.hierarchy.registration_settings` (the cross-plant setting: node ranks on every
+axis, lp 100, as on the simulator plants of ``benchmarks/bench_cross_simulator.py``). ``--order-tol -1``: any-order
+children's matching; ``--positions rank --lp 12``: node ranks on the main branch only. Prints pooled precision /
+recall % per set, overall and per set and frame.
 """
 
 from __future__ import annotations

@@ -16,7 +16,7 @@ they are. ``--oracle``: the best matchings a registration could return
 on these hierarchies: children of matched branches paired by ``label`` (the ceiling), by ``node`` index, or by
 ``rank`` of occupied nodes (what node ranks can see).
 
-    PYTHONPATH=. python benchmarks/bench_cross_simulator.py sunflower lupin wheat --positions nodes --lp 30
+    PYTHONPATH=. python benchmarks/bench_cross_simulator.py sunflower lupin wheat --positions rank --lp 12
 """
 
 from __future__ import annotations

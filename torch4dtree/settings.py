@@ -61,11 +61,11 @@ DEFAULT_MAX_SLOTS = 512
 ORDER_TOL = 0.02  # siblings closer than this share of their parent may match in any order
 # within-sequence registrations (frame j onto j + 1): lp 9 relative favours identities between consecutive frames
 WITHIN_LAMBDAS = (1.0, 1.0, 9.0)
-# cross-sequence registrations (two plants): node ranks, relative lp 12, children kept in order. Plants of a kind
-# carry their organs in one order up the stem (leaf k below leaf k + 1), and node k of one plant is node k of another;
-# lp is used by the registration only, the 4D distance keeps the space's metric
-CROSS_POSITIONS = "rank"
-CROSS_LP: float | None = 12.0
+# cross-sequence registrations (two plants): node ranks on every axis, relative lp 100, children kept in order.
+# Plants of a kind carry their organs in one order up each axis (leaf k below leaf k + 1), and node k of one plant is
+# node k of another; lp is used by the registration only, the 4D distance keeps the space's metric
+CROSS_POSITIONS = "nodes"
+CROSS_LP: float | None = 100.0
 CROSS_ORDER_TOL: float | None = ORDER_TOL
 # register4d's wider rotation search, run only where the asked rotation finds no correspondence better than the
 # index order (it costs about 10x rotation="none")

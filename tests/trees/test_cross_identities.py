@@ -140,3 +140,18 @@ def test_leaflets_keep_their_arc_length_fractions(monkeypatch, bug):
         assert fractions[-1] > 2.0
     else:
         assert np.allclose(fractions, [0.2, 0.4, 0.6, 0.8], atol=0.05), fractions
+
+
+def test_a_spur_on_a_stem_shorter_than_its_leaves_counts_no_node():
+    """A 5 mm skeleton spur below the first leaf of an 80 mm stem carrying 150 mm leaves: measured against the stem's
+    length it would count 0.69 of a node and shift every leaf above it (every leaf of a plant without the spur a
+    node off: our synthetic tomatoes' hypocotyl spurs); measured against the stem's organs (the median node) it counts
+    under 0.1, and the leaves of two such plants, one with the spur, pair with each other."""
+    a, b = plant(8.0, {}), plant(7.0, {})
+    a = _with_extra(a, 0, np.array([0.0, 0.0, 4.0]), np.array([1.0, 0.0, 0.0]), 5.0, 99)
+    at = _positions(a)
+    assert 1.0 - math.exp(-((5.0 / (prepare_module.NODE_SIGNIFICANT * 80.0)) ** prepare_module.NODE_POWER)) > 0.6
+    assert at[99] == 0.0 and 0.0 < at[11] < 0.1, at  # the case is real: the stem's length alone would count 0.69
+    assert np.allclose([at[10 * n + 11] - at[11] for n in range(9)], range(9), atol=1e-6)
+    precision, recall = scores(a, b)
+    assert precision == 1.0 and recall == 1.0, (precision, recall)

@@ -33,8 +33,9 @@ RANK_NODE_TOL = 0.02
 # "rank": a node counts 1 - exp(-(l / (RANK_SIGNIFICANT x main branch length))^2) towards the ranks above it, l its
 # largest subtree's total length: a skeleton spur a few % of the stem long barely counts, an organ counts ~1
 RANK_SIGNIFICANT = 0.1
-# "nodes": a node counts 1 - exp(-(l / (NODE_SIGNIFICANT x its parent's length))^NODE_POWER): an organ 9 % of its
-# parent long counts ~1, a spur 3 % long ~0.06
+# "nodes": a node counts 1 - exp(-(l / (NODE_SIGNIFICANT x L))^NODE_POWER), L the larger of its parent's length and
+# the median size l of the parent's nodes: an organ 9 % of L long counts ~1, a spur 3 % long ~0.06; on a stem
+# carrying organs longer than itself (a tomato) a spur is measured against those organs, not the stem's length
 NODE_SIGNIFICANT = 0.06
 NODE_POWER = 4.0
 # "nodes": an axis weighs 1 - exp(-(c / (AXIS_CARRIES x its length))^4), c what it carries (a shoot with its leaves,
@@ -188,11 +189,13 @@ def _node_ranks(s_arc: np.ndarray, parent: list[int], children: list[list[int]],
         kids = np.asarray(children[p])
         groups = [kids[grp] for grp in order_groups(s_arc[kids], RANK_NODE_TOL)]
         share, power = (NODE_SIGNIFICANT, NODE_POWER) if every_branch else (RANK_SIGNIFICANT, 2.0)
-        scale = max(share * float(lengths[p]), MIN_LENGTH)
+        sizes = [float(total[members].max()) for members in groups]  # a node's size: its largest subtree
+        ref = max(float(lengths[p]), float(np.median(sizes))) if every_branch else float(lengths[p])
+        scale = max(share * ref, MIN_LENGTH)
         below = 0.0
-        for members in groups:
+        for members, size in zip(groups, sizes):
             out[members] = below + AXIL_OFFSET * axis[members]
-            below += 1.0 - math.exp(-((float(total[members].max()) / scale) ** power))
+            below += 1.0 - math.exp(-((size / scale) ** power))
     return out
 
 
