@@ -279,8 +279,7 @@ def continuation_children(xyz: np.ndarray, parent: np.ndarray, order: np.ndarray
                 for c in candidates}
         last = xyz[v] - xyz[parent[v]]  # the branch's own last edge into the branch point
         tangent = {c: _angle(last, xyz[c] - xyz[v]) for c in candidates}
-        straight = _angle(last, xyz[v] - _point_up(xyz, parent, edge, v, floor))
-        if max(straight, min(tangent.values())) <= COLLINEAR_RADIANS:
+        if max(_angle(last, xyz[v] - _point_up(xyz, parent, edge, v, floor)), min(tangent.values())) <= COLLINEAR_RADIANS:
             turn = {c: turn[c] + tangent[c] for c in candidates}
         if hierarchy == "continuation":
             # what each child carries besides its own longest path (side organs), a window counting as nothing
