@@ -17,9 +17,7 @@ into the child the rule picks; every other child starts a side branch, decompose
   where there is no incoming direction (at the root). Stems, rachises and shoots run straight through
   their nodes while leaves and leaflets leave at an angle, whichever is longer on that day. The window at a
   branch point is half the length of the side organ leaving there, at least 2 % of the plant's extent
-  (:func:`organ_window`). Where the stem runs perfectly straight into the branch point and a child's first edge
-  runs on in its line, each child's turn also counts its first edge's angle to the stem's last edge
-  (:data:`COLLINEAR_RADIANS`): the stem's apex between two like leaves a millimetre apart goes on as the stem.
+  (:func:`organ_window`).
 
 Lengths are Euclidean along the skeleton, directions are measured over arc-length windows and the
 windows are lengths of the geometry, so the hierarchy does not depend on how densely the nodes sample
@@ -141,13 +139,6 @@ SPUR_WINDOWS = 0.1
 # child carries: its subtree's length off its own longest path, plus one window); 0.1-0.25 keep the herbaceous
 # identities of "straightest" and fix the woody ones, 0.5 loses tomato and bean leaves (docs/experiments.md)
 CARRY_RADIANS = 0.15
-# a straight stem running on: where the branch's last edge lies within this angle of its chord over the window's floor
-# and a child's first edge within it of that last edge, every child's turn adds its first edge's angle to the last
-# edge. Two organs that leave a straight stem a millimetre apart at the same angle (a grass stem's last two leaves,
-# the stem's apex between them) look alike over any window; only the stem's first stretch, in line with the stem,
-# tells them apart. Jittered or zig-zag stems (our synthetic kinds, real scans) are never this straight, so there the
-# rule is "straightest" as it was (docs/experiments.md)
-COLLINEAR_RADIANS = math.radians(3.0)
 DIRECTED = ("straightest", "continuation")  # the rules that measure directions
 # divisor floor of a product of vector norms: a zero-length direction gives an angle instead of nan
 MIN_NORM = 1e-300
@@ -277,10 +268,6 @@ def continuation_children(xyz: np.ndarray, parent: np.ndarray, order: np.ndarray
         candidates = [c for c in kids if down[c] >= SPUR_WINDOWS * w] or [heaviest]
         turn = {c: _angle(incoming, _point_down(xyz, parent, children, edge, c, w, incoming) - xyz[v])
                 for c in candidates}
-        last = xyz[v] - xyz[parent[v]]  # the branch's own last edge into the branch point
-        tangent = {c: _angle(last, xyz[c] - xyz[v]) for c in candidates}
-        if max(_angle(last, xyz[v] - _point_up(xyz, parent, edge, v, floor)), min(tangent.values())) <= COLLINEAR_RADIANS:
-            turn = {c: turn[c] + tangent[c] for c in candidates}
         if hierarchy == "continuation":
             # what each child carries besides its own longest path (side organs), a window counting as nothing
             carried = {c: down[c] - path[c] + w for c in candidates}
