@@ -68,6 +68,19 @@ def test_metrics_by_hand() -> None:
     assert (m["nna"], m["nna_samples"], m["nna_real"], m["cov"]) == (0.5, 1.0, 0.0, 0.5)
 
 
+def test_a_training_plant_at_random_is_drawn_independently() -> None:
+    """The memorising baseline draws its samples as a generator does, independently: with as many held-out as
+    training plants, drawing without replacement would make every draw the whole training set."""
+    idx = gen.training_draws(20, 20, 50, torch.Generator().manual_seed(0))
+    assert idx.shape == (50, 20)
+    assert sum(len(set(row.tolist())) < 20 for row in idx) >= 45  # a draw of 20 without a repeat: 2e-8
+    counts = torch.bincount(idx.reshape(-1), minlength=20)
+    assert counts.min() >= 25 and counts.max() <= 75  # uniform: 50 each
+    train = torch.zeros(20, 4, 2, dtype=torch.float64)
+    _, draws = gen._pool("memorise", None, train, 20, 50, torch.Generator().manual_seed(0))  # the section's row
+    assert torch.equal(draws, idx)
+
+
 def test_novelty_threshold() -> None:
     t = _line([0.0, 4.0, 10.0])  # training nearest neighbours 4, 4, 6: median 4, threshold 1
     s = _line([0.5, 7.0, 12.0])

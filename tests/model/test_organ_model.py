@@ -198,3 +198,25 @@ def test_forecast_continues_an_observed_plant(
         grown = f.frames.total_length()
         assert float(grown[0]) >= 0.9 * seen and (grown[1:] >= grown[:-1] - 1e-6).all()
         assert 0.5 < float(grown[-1]) / float(plant.frames[-1].total_length()[0]) < 2.0
+
+
+def test_samples_stand_as_the_training_plants_stand(population: tuple[list[TreeSequence], list[TreeSequence]]
+                                                    ) -> None:
+    """A sample keeps its donor's orientation about the vertical (the ground metric registers plants without
+    rotation): copying one plant whole (no switch, no length noise), each organ of a sample points as a training
+    organ does, not turned by a random angle."""
+    from torch4dtree.model.organ_table import azimuth
+    from torch4dtree.settings import OrganSettings
+
+    m = OrganModel(OrganSettings(persistence=1.0, jitter=0.0)).fit(population[0])
+    keys = m.sample_keys()[0]
+    for sample in m.sample(6, generator=torch.Generator().manual_seed(0)):
+        last = sample.frames[len(sample) - 1]
+        for key in ((), (0,)):
+            k = keys.index(key)
+            rows = torch.nonzero(last.label == k).reshape(-1)
+            assert len(rows) == 1
+            mine = float(azimuth(last.points[int(rows[0])]))
+            theirs = azimuth(m.shape[:, -1])  # a key copies an organ of its parent's donor, at any rank
+            turned = torch.remainder(theirs - mine + torch.pi, 2 * torch.pi) - torch.pi
+            assert float(turned.abs().min()) < 1e-6, key

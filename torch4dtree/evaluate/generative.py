@@ -52,7 +52,8 @@ per fold, 4 when ``quick``; metrics per draw, summarised over all draws of all f
 
 * ``organs``, ``memorise_encoded``: above;
 * ``model``: the paper model's sampler (independent truncated standard normal coefficients, ``c = 3``);
-* ``memorise``: a training plant at random (without replacement within a draw) - the memorising generator;
+* ``memorise``: a training plant at random, each sample drawn independently (with replacement, as every
+  generator's samples are independent: :func:`training_draws`) - the memorising generator;
 * ``paper_scalar``: the authors' synthesis script: one scalar uniform in ``[-0.5, 0.5]`` shared by the first three
   modes (standardised), the others at 0;
 * ``mean``: the 4D mean alone (a collapsed generator).
@@ -118,7 +119,7 @@ from .morphometrics import AGES, compare_populations, files_curve, population_cu
 from .paper import SECONDS
 from .stats import summary
 
-__all__ = ["GENERATORS", "markdown", "run"]
+__all__ = ["GENERATORS", "markdown", "run", "training_draws"]
 
 # generator streams of this section (settings.generator(offset)): split, then samples per fold
 SEED_OFFSET = 300
@@ -161,11 +162,25 @@ def _subsets(n: int, h: int, draws: int, gen: torch.Generator) -> Tensor:
                         for _ in range(draws)])
 
 
+def training_draws(n: int, h: int, draws: int, gen: torch.Generator) -> Tensor:
+    """``(draws, h)`` indices into ``n`` training plants, each drawn independently and uniformly (with replacement):
+    "a training plant at random" as a generator's samples are drawn, independently. Without replacement, ``h = n``
+    would make every draw the whole training set, a stratified set that no generator of independent samples
+    matches in expectation (its MMD is lower and its COV higher than any independent draw's).
+
+    Example:
+        >>> idx = training_draws(20, 20, 3, torch.Generator().manual_seed(0))
+        >>> idx.shape, bool((idx >= 0).all() and (idx < 20).all())
+        (torch.Size([3, 20]), True)
+    """
+    return torch.randint(n, (draws, h), generator=gen)
+
+
 def _pool(name: str, model: FourDTreeModel, train: Tensor, h: int, draws: int, gen: torch.Generator
           ) -> tuple[Tensor, Tensor]:
     """A generator's candidate trajectories ``(P, n_t, k)`` and each draw's indices into them ``(draws, h)``."""
     if name == "memorise":
-        return train, _subsets(train.shape[0], h, draws, gen)
+        return train, training_draws(train.shape[0], h, draws, gen)
     if name == "mean":
         return model.mean.trajectory[None], torch.zeros(draws, h, dtype=torch.long)
     P = draws * h
@@ -345,7 +360,8 @@ def _fold(train: list[Plant4D], held: list[Plant4D], settings: EvalSettings, gen
     for name in ALL_GENERATORS:
         if name in ("organs", "memorise_encoded"):
             pool = s_alpha if name == "organs" else te_alpha
-            idx = _subsets(pool.shape[0], h, draws, gen)
+            # the organ model's pool is independent samples already; the training plants are drawn as samples are
+            idx = (_subsets if name == "organs" else training_draws)(pool.shape[0], h, draws, gen)
         else:
             pool, idx = _pool(name, model, t_alpha[..., :k], h, draws, gen)
             pools[name] = pool

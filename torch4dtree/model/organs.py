@@ -15,8 +15,10 @@ identity per organ over time) and models what the plants are made of instead:
   follows with probability ``persistence``, else one drawn with Gaussian kernel weights near ``z`` (``bandwidth`` in
   standard deviations) among the plants that have that previous organ. The organ exists if that plant has it (so
   topology is conditional on the parent and the previous sibling), and takes its log length (plus ``jitter``), its
-  unit-length shapes over age, its monotone growth curve and its attachment. Size is apart from shape, so nothing is
-  averaged into a stub; organs grow as the training organs grow, and vanish only where those did.
+  unit-length shapes over age, its monotone growth curve and its attachment; the plant stands as its first
+  donor stands (its orientation about the vertical), and a copied organ keeps its azimuth relative to its parent.
+  Size is apart from shape, so nothing is averaged into a stub; organs grow as the training organs grow, and vanish
+  only where those did.
 
 It is a kernel (nonparametric) conditional model: the fitted buffers hold the training organs. Samples mix organs of
 different plants, so they are new plants, not copies (benchmarks/bench_generative.py measures both).
@@ -231,7 +233,7 @@ class OrganModel(nn.Module):
 
     def _draws(self, seeds: list[int]) -> tuple[Tensor, Tensor]:
         """Each plant's random numbers from its own seed: uniforms ``(B, 3 + 2K)`` (latent's plant, first donor,
-        turn, then per key of :meth:`sample_keys` the switch and the donor's pick) and standard normals
+        one unused, then per key of :meth:`sample_keys` the switch and the donor's pick) and standard normals
         ``(B, LATENT + K)`` (latent noise, then per key the length jitter)."""
         K = len(self.sample_keys()[0])
         u, n = [], []
@@ -327,7 +329,9 @@ class OrganModel(nn.Module):
         K = len(children)
         persistence = self.settings.persistence
         first = int(pick_donors(torch.from_numpy(w)[None], torch.tensor([u[1]]))[0])
-        chosen[0], turn[0] = record[first, 0], 2 * math.pi * u[2]
+        # the plant keeps its first donor's orientation about the vertical (the training plants' orientations are
+        # part of what the ground metric compares, which registers plants without rotation); ``u[2]`` is unused
+        chosen[0], turn[0] = record[first, 0], 0.0
         todo = [0]
         for k in todo:  # parents first: only the keys taken
             source = int(chosen[k])
