@@ -250,6 +250,18 @@ class OrganModel(nn.Module):
             self._links = organ_links(self.record, self.key_parent, self.s, self.growth, self.log_length)
         return self._links
 
+    def length_range(self) -> tuple[Tensor, Tensor]:
+        """``(R,)`` twice: per training organ the least and the largest log length among the organs that stand in
+        for it in the training plants (:attr:`OrganLinks.equivalent`, itself included): a sampled organ's length
+        jitter stays within them, so no organ grows longer than any training plant's organ at its place."""
+        eq = torch.from_numpy(self.links().equivalent)
+        here = eq >= 0
+        ll = self.log_length[eq.clamp(min=0)]
+        own = self.log_length[:, None]
+        lo = torch.where(here, ll, torch.inf).amin(1).minimum(own[:, 0])
+        hi = torch.where(here, ll, -torch.inf).amax(1).maximum(own[:, 0])
+        return lo, hi
+
     def sample_keys(self) -> tuple[list[tuple[int, ...]], Tensor]:
         """The botanical keys a sample's organs can take and each one's parent key ``(K',)``: the training keys
         (:attr:`keys`, in order) then, parents first, every further ``k``-th child of a key up to the most children
@@ -301,6 +313,8 @@ class OrganModel(nn.Module):
         present = chosen_t >= 0
         rr = chosen_t.clamp(min=0)
         log_len = self.log_length[rr] + self.settings.jitter * noise[:, LATENT:]
+        lo, hi = self.length_range()  # the jitter stays within what the organs standing in for this one span
+        log_len = torch.minimum(torch.maximum(log_len, lo[rr]), hi[rr])
         s_of = torch.where(present[..., None], self.s[rr], 0.0)
         return chosen_t, torch.where(present, log_len.exp(), 0.0), torch.from_numpy(turn), s_of
 
