@@ -470,7 +470,8 @@ def latent_weights(summary: Tensor, latent: Tensor, bandwidth: float) -> Tensor:
     features (a constant feature counts as one of width :data:`FLAT_FEATURE`).
 
     Example:
-        >>> latent_weights(torch.tensor([[0.0], [2.0]]), torch.tensor([[0.0], [1.0]]), 1.0).round(decimals=2).tolist()
+        >>> w = latent_weights(torch.tensor([[0.0], [2.0]]).double(), torch.tensor([[0.0], [1.0]]).double(), 1.0)
+        >>> w.round(decimals=2).tolist()
         [[0.73, 0.27], [0.5, 0.5]]
     """
     scale = summary.std(0).clamp_min(FLAT_FEATURE)
