@@ -180,7 +180,7 @@ class OrganModel(nn.Module):
     # ------------------------------------------------------------------------ fit
     def fit(self, sequences: Sequence[TreeSequence]) -> OrganModel:
         """Fit on ``N >= 2`` 4D trees: register each within itself, tabulate its organs, fit the latent. Returns
-        ``self``."""
+        ``self``; ``report_`` holds the counts, the kernel width in use (:meth:`donor_bandwidth`) and the time."""
         import time
 
         sequences = list(sequences)
@@ -209,7 +209,7 @@ class OrganModel(nn.Module):
         spans = torch.tensor([float(s.times[-1] - s.times[0]) for s in sequences], dtype=torch.float64)
         self.time_start, self.duration = starts.mean(), spans.mean().clamp_min(1e-12)
         self.report_ = {"plants": P, "keys": K, "organs": len(table.key), "ages": len(table.ages),
-                        "seconds": time.perf_counter() - t0}
+                        "bandwidth": self.donor_bandwidth(), "seconds": time.perf_counter() - t0}
         return self
 
     def check_fitted(self) -> None:
