@@ -307,7 +307,16 @@ class OrganModel(nn.Module):
     def length_range(self) -> tuple[Tensor, Tensor]:
         """``(R,)`` twice: per training organ the least and the largest log length among the organs that stand in
         for it in the training plants (:attr:`OrganLinks.equivalent`, itself included): a sampled organ's length
-        jitter stays within them, so no organ grows longer than any training plant's organ at its place."""
+        jitter stays within them, so no organ grows longer than any training plant's organ at its place.
+
+        Example:
+            >>> from torch4dtree.data.synthetic import synthetic_plant
+            >>> train = [synthetic_plant(kind="bean", seed=i, n_frames=3, T=16).sequence for i in range(3)]
+            >>> model = OrganModel().fit(train)
+            >>> lo, hi = model.length_range()
+            >>> bool((lo <= model.log_length).all() and (model.log_length <= hi).all())
+            True
+        """
         eq = torch.from_numpy(self.links().equivalent)
         here = eq >= 0
         ll = self.log_length[eq.clamp(min=0)]
