@@ -201,14 +201,13 @@ def describe(seqs: list[TreeSequence], labelled: bool) -> tuple[dict[str, str], 
 def donors(model: OrganModel, seeds: int, n_per: int) -> tuple[np.ndarray, int, int]:
     """Copies of training plants: per sample the share of its organs taken from its most used training plant (1: the
     whole plant is one training plant), the number of sample pairs with identical organ choices, and of samples.
-    Samples are drawn as in :func:`samples` (the same seeds)."""
+    Samples are drawn as in :func:`samples` (the same seeds); :meth:`OrganModel.grow` tells which training organ each
+    sample organ copies."""
     links = model.links()
     shares, sigs = [], []
     for seed in range(seeds):
         z = model.sample_coefficients(n_per, torch.Generator().manual_seed(seed))
-        # which training organ each sample organ copies is not exposed by a public method
-        chosen, *_ = model._grow([int(x) for x in z.reshape(-1)])
-        for row in chosen:
+        for row in model.grow([int(x) for x in z.reshape(-1)]).chosen:
             r = row[row >= 0].numpy()
             pl = links.plant[r]
             shares.append(np.bincount(pl).max() / len(pl))
@@ -282,7 +281,8 @@ def report(model: OrganModel | FourDTreeModel, train: list[TreeSequence], seeds:
     if isinstance(model, OrganModel):
         shares, same, n = donors(model, seeds, n_per)
         print(f"donors: whole copies of one training plant {100 * np.mean(shares == 1):.1f} %, median top-donor "
-              f"share {np.median(shares):.2f}, identical organ choices {same} of {n * (n - 1) // 2} pairs")
+              f"share {np.median(shares):.2f}, identical organ choices {same} of {n * (n - 1) // 2} pairs; kernel "
+              f"width {model.donor_bandwidth():.3g} sd ({len(model.summary)} training plants)")
     print(f"median total length at {columns} ages: training {median_by_age(totals_by_age(train, columns), columns)}"
           f" / samples {median_by_age(totals_by_age(gen, columns), columns)}")
     return {f"train_{k}": v for k, v in a_train.items()} | {f"sample_{k}": v for k, v in a_samp.items()}

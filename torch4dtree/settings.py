@@ -449,8 +449,10 @@ class OrganSettings(_PlainDict):
     Attributes:
         n_ages: frames of a generated plant (normalised ages ``linspace(0, 1, n_ages)``); ``None``: the training
             plants' median number of frames.
-        bandwidth: the kernel's width over the plant latent, in standard deviations (small: samples follow single
-            training plants; large: organs drawn from the whole population regardless of the plant's vigour).
+        bandwidth: the kernel's least width over the plant latent, in standard deviations (small: samples follow single
+            training plants; large: organs drawn from the whole population regardless of the plant's vigour); the
+            model widens it on small populations until a sample draws on several plants
+            (:meth:`~torch4dtree.model.OrganModel.donor_bandwidth`).
         persistence: the chance that an organ copies the same training plant as the organ it follows (its previous
             sibling, or its parent for a first child); otherwise it switches to a plant drawn near the latent. 1
             copies whole plants, 0 draws every organ afresh.

@@ -220,3 +220,51 @@ def test_samples_stand_as_the_training_plants_stand(population: tuple[list[TreeS
             theirs = azimuth(m.shape[:, -1])  # a key copies an organ of its parent's donor, at any rank
             turned = torch.remainder(theirs - mine + torch.pi, 2 * torch.pi) - torch.pi
             assert float(turned.abs().min()) < 1e-6, key
+
+
+def test_no_sampled_organ_outgrows_the_training_organs_it_stands_for(model: OrganModel) -> None:
+    """The length jitter stays within the training organs that stand in for the copied one (itself included): a
+    sample has no leaf longer than every real leaf at its place."""
+    draw = model.grow(list(range(40)))
+    present = draw.chosen >= 0
+    r = draw.chosen[present]
+    standing = torch.from_numpy(model.links().equivalent[r.numpy()])  # (N, P) the organs standing in for each
+    log_longest = torch.where(standing >= 0, model.log_length[standing.clamp(min=0)], -torch.inf).amax(1)
+    longest = log_longest.maximum(model.log_length[r]).exp()
+    assert (draw.length[present] <= longest * (1 + 1e-12)).all()
+
+
+def copies_of_one_plant(model: OrganModel, n: int) -> float:
+    """The share of ``n`` samples (seeds 0 .. n-1) whose organs all come from one training plant."""
+    draw = model.grow(list(range(n)))
+    plant = torch.from_numpy(model.links().plant)
+    whole = [len(torch.unique(plant[row[row >= 0]])) == 1 for row in draw.chosen]
+    return sum(whole) / n
+
+
+def test_a_few_training_plants_are_mixed_not_copied(population: tuple[list[TreeSequence], list[TreeSequence]],
+                                                     monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    """Four training plants: a memoriser gives whole copies every time; the model's kernel widens until a sample
+    draws on several plants, so few samples copy one plant whole (a fixed width of 0.6 sd: about 40 %). The width
+    is a function of the fitted plants: a checkpoint gives it back, and seeds reproduce."""
+    m = OrganModel().fit(population[0][:4])
+    assert copies_of_one_plant(m, 40) <= 0.2  # a memoriser: 1.0
+    assert m.donor_bandwidth() > m.settings.bandwidth
+    assert organs.effective_donors(m.summary, m.donor_bandwidth()) >= organs.MIN_DONORS - 1e-6
+    save_model(m, tmp_path / "tiny.pt")
+    back = load(tmp_path / "tiny.pt")
+    assert back.donor_bandwidth() == m.donor_bandwidth()
+    assert torch.equal(back.grow([5, 6]).chosen, m.grow([5, 6]).chosen)
+    assert torch.equal(m.grow([5, 6]).length, m.grow([5, 6]).length)
+
+
+def test_the_kernel_keeps_its_width_on_many_plants() -> None:
+    """Forty plants spread as a Gaussian already give each sample several donors at ``settings.bandwidth``: the
+    width stays; a quarter of them widens it."""
+    latents = torch.randn(40, 3, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
+    widths = []
+    for n in (40, 10):
+        m = OrganModel()
+        m.keys, m.summary = [()], latents[:n]
+        widths.append(m.donor_bandwidth())
+    assert widths[0] == OrganModel().settings.bandwidth < widths[1]

@@ -12,11 +12,13 @@ identity per organ over time) and models what the plants are made of instead:
   organs);
 * **organs copied with switches** (as haplotype copying models do): key by key, parents first and siblings in
   order, each organ follows a training plant: the one its previous sibling (or, for a first child, its parent)
-  follows with probability ``persistence``, else one drawn with Gaussian kernel weights near ``z`` (``bandwidth`` in
-  standard deviations) among the plants that have that previous organ. The organ exists if that plant has it (so
-  topology is conditional on the parent and the previous sibling), and takes its log length (plus ``jitter``), its
-  unit-length shapes over age, its monotone growth curve and its attachment; the plant stands as its first
-  donor stands (its orientation about the vertical), and a copied organ keeps its azimuth relative to its parent.
+  follows with probability ``persistence``, else one drawn with Gaussian kernel weights near ``z`` (in standard
+  deviations: ``bandwidth``, widened on few training plants so a sample draws on several,
+  :meth:`OrganModel.donor_bandwidth`) among the plants that have that previous organ. The organ exists if that plant
+  has it (so topology is conditional on the parent and the previous sibling), and takes its log length (plus
+  ``jitter``, kept within the lengths of the training organs standing in for it), its unit-length shapes over age,
+  its monotone growth curve and its attachment; the plant stands as its first donor stands (its orientation about
+  the vertical), and a copied organ keeps its azimuth relative to its parent.
   Size is apart from shape, so nothing is averaged into a stub; organs grow as the training organs grow, and vanish
   only where those did.
 
@@ -29,7 +31,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import torch
@@ -40,20 +42,33 @@ from ..settings import OrganSettings
 from ..trees.structures import Trees, TreeSequence
 from .organ_table import UP, OrganLinks, organ_links, organ_table
 
-__all__ = ["OrganModel", "OrganModelError", "assemble_batch", "assemble_frames", "carry_parents", "pick_donors",
-           "rotate_about_up"]
+__all__ = ["OrganModel", "OrganModelError", "PlantDraw", "assemble_batch", "assemble_frames", "carry_parents",
+           "effective_donors", "latent_weights", "pick_donors", "rotate_about_up"]
 
 # the plant latent's features: log total length at the last age, at the middle age, log(1 + organs at the last age)
 LATENT = 3
 # keep a sampled organ in a frame when it is at least this share of its plant's final main-branch length (a shorter
 # one would be a zero-length branch once written)
 MIN_LENGTH = 1e-3
+# a latent feature with no spread (every training plant alike) is measured in these units instead of by its zero
+# standard deviation
+FLAT_FEATURE = 1e-9
 # plants grown together by OrganModel.decode (bounds the memory of a chunk's organ curves)
 DECODE_CHUNK = 64
 # most botanical keys a sample can take (OrganModel.sample_keys): deep hierarchies with many children per organ would
 # otherwise open keys exponentially in their depth (five Pheno4D tomatoes: not done in 5 min); keys open parents
 # first, so the last ranks of the deepest organs are the ones left out
 MAX_SAMPLE_KEYS = 50_000
+# the latent kernel keeps at least this many effective donors (Kish's ``1 / sum w^2``) at the training plants' own
+# latents, on average (OrganModel.donor_bandwidth): with few training plants a fixed width puts most of the weight on
+# the plant the latent was drawn around, and samples copy it whole. Three: populations of 20 plants keep 3.8-4.1 at
+# the default width, so it widens only for fewer plants (about 15 or less)
+MIN_DONORS = 3.0
+# the widest kernel the search for MIN_DONORS tries, in standard deviations of the latent (its weights are then
+# nearly uniform over any population's latents, whose features lie within a few standard deviations)
+MAX_BANDWIDTH = 8.0
+# bisection steps of that search (the width to 2**-20 of the search's log range)
+BANDWIDTH_STEPS = 20
 
 
 class OrganModelError(ValueError):
@@ -77,6 +92,20 @@ def rotate_about_up(x: Tensor, angle: Tensor | float) -> Tensor:
     out[..., h[0]] = c * x[..., h[0]] - s * x[..., h[1]]
     out[..., h[1]] = s * x[..., h[0]] + c * x[..., h[1]]
     return out
+
+
+class PlantDraw(NamedTuple):
+    """The organs of ``B`` sampled plants over the ``K`` keys of :meth:`OrganModel.sample_keys`
+    (:meth:`OrganModel.grow`)."""
+
+    chosen: Tensor
+    """``(B, K)`` long: the training organ each key copies (a row of the fitted buffers; -1: absent)."""
+    length: Tensor
+    """``(B, K)`` the organ's largest length, in data units (0: absent)."""
+    turn: Tensor
+    """``(B, K)`` its rotation about the vertical, radians."""
+    s_of: Tensor
+    """``(B, K, G)`` its attachment on its parent at each age."""
 
 
 class OrganModel(nn.Module):
@@ -114,6 +143,7 @@ class OrganModel(nn.Module):
         self._links: OrganLinks | None = None
         self._reach: tuple[list[tuple[int, ...]], Tensor] | None = None
         self._plan: tuple[list[list[int]], np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._bandwidth: float | None = None
 
     # ------------------------------------------------------------------------ state
     def get_extra_state(self) -> dict[str, Any]:
@@ -130,7 +160,7 @@ class OrganModel(nn.Module):
         for name in list(self._buffers):
             if name in state_dict:
                 self._buffers[name] = torch.empty_like(state_dict[name])
-        self._links = self._reach = self._plan = None
+        self._links = self._reach = self._plan = self._bandwidth = None
         return super().load_state_dict(state_dict, strict, assign)
 
     def save(self, path: str | Path, config: dict[str, Any] | None = None, overwrite: bool = False) -> str:
@@ -150,7 +180,7 @@ class OrganModel(nn.Module):
     # ------------------------------------------------------------------------ fit
     def fit(self, sequences: Sequence[TreeSequence]) -> OrganModel:
         """Fit on ``N >= 2`` 4D trees: register each within itself, tabulate its organs, fit the latent. Returns
-        ``self``."""
+        ``self``; ``report_`` holds the counts, the kernel width in use (:meth:`donor_bandwidth`) and the time."""
         import time
 
         sequences = list(sequences)
@@ -174,12 +204,12 @@ class OrganModel(nn.Module):
         self.shape, self.growth, self.s = table.shape, table.growth, table.s
         self.azimuth, self.parent_azimuth = table.azimuth, table.parent_azimuth
         self.summary, self.ages = summary, table.ages
-        self._links = self._reach = self._plan = None
+        self._links = self._reach = self._plan = self._bandwidth = None
         starts = torch.tensor([float(s.times[0]) for s in sequences], dtype=torch.float64)
         spans = torch.tensor([float(s.times[-1] - s.times[0]) for s in sequences], dtype=torch.float64)
         self.time_start, self.duration = starts.mean(), spans.mean().clamp_min(1e-12)
         self.report_ = {"plants": P, "keys": K, "organs": len(table.key), "ages": len(table.ages),
-                        "seconds": time.perf_counter() - t0}
+                        "bandwidth": self.donor_bandwidth(), "seconds": time.perf_counter() - t0}
         return self
 
     def check_fitted(self) -> None:
@@ -212,7 +242,7 @@ class OrganModel(nn.Module):
         try:
             for lo in range(0, len(seeds), DECODE_CHUNK):
                 chunk = seeds[lo:lo + DECODE_CHUNK]
-                chosen, length, turn, s_of = self._grow(chunk)
+                chosen, length, turn, s_of = self.grow(chunk)
                 names = [f"sample_{i:03d}" for i in range(lo, lo + len(chunk))]
                 out += self._frames(chosen, length, turn, s_of, times, names)
         finally:
@@ -223,13 +253,37 @@ class OrganModel(nn.Module):
         """``n`` new 4D trees at :meth:`times`."""
         return self.decode(self.sample_coefficients(n, generator))
 
+    def donor_bandwidth(self) -> float:
+        """The latent kernel's width in standard deviations: the least one, at or above ``settings.bandwidth``, whose
+        weights at the training plants' own latents keep on average :data:`MIN_DONORS` effective donors
+        (:func:`effective_donors`; :data:`MAX_BANDWIDTH` when no width up to it does). On populations of tens of
+        plants ``settings.bandwidth`` already does and stays; on a few plants the kernel widens, so a sample's
+        organs are drawn from several plants instead of copying the one its latent was drawn around.
+
+        Example:
+            >>> m = OrganModel(OrganSettings(bandwidth=0.5))
+            >>> m.summary = torch.tensor([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+            >>> m.keys = [()]
+            >>> round(m.donor_bandwidth(), 2), round(float(effective_donors(m.summary, m.donor_bandwidth())), 2)
+            (1.65, 3.0)
+        """
+        self.check_fitted()
+        if self._bandwidth is None:
+            lo = float(self.settings.bandwidth)
+            hi = max(lo, MAX_BANDWIDTH)
+            if float(effective_donors(self.summary, lo)) >= MIN_DONORS:
+                hi = lo
+            elif float(effective_donors(self.summary, hi)) >= MIN_DONORS:
+                for _ in range(BANDWIDTH_STEPS):  # geometric bisection: the donors grow with the width
+                    mid = math.sqrt(lo * hi)
+                    lo, hi = (lo, mid) if float(effective_donors(self.summary, mid)) >= MIN_DONORS else (mid, hi)
+            self._bandwidth = hi
+        return self._bandwidth
+
     def kernel_weights(self, latent: Tensor) -> Tensor:
-        """``(..., LATENT) -> (..., P)`` the training plants' weights near plant latents (sum 1)."""
-        scale = self.summary.std(0).clamp_min(1e-9)
-        d2 = ((latent[..., None, :] - self.summary) / scale).square().sum(-1)
-        w = torch.exp(-0.5 * d2 / self.settings.bandwidth ** 2)
-        total = w.sum(-1, keepdim=True)
-        return torch.where(total > 0, w / total.clamp_min(torch.finfo(w.dtype).tiny), 1.0 / w.shape[-1])
+        """``(..., LATENT) -> (..., P)`` the training plants' weights near plant latents (sum 1), with the kernel
+        width :meth:`donor_bandwidth`."""
+        return latent_weights(self.summary, latent, self.donor_bandwidth())
 
     def _draws(self, seeds: list[int]) -> tuple[Tensor, Tensor]:
         """Each plant's random numbers from its own seed: uniforms ``(B, 3 + 2K)`` (latent's plant, first donor,
@@ -249,6 +303,27 @@ class OrganModel(nn.Module):
         if self._links is None:
             self._links = organ_links(self.record, self.key_parent, self.s, self.growth, self.log_length)
         return self._links
+
+    def length_range(self) -> tuple[Tensor, Tensor]:
+        """``(R,)`` twice: per training organ the least and the largest log length among the organs that stand in
+        for it in the training plants (:attr:`OrganLinks.equivalent`, itself included): a sampled organ's length
+        jitter stays within them, so no organ grows longer than any training plant's organ at its place.
+
+        Example:
+            >>> from torch4dtree.data.synthetic import synthetic_plant
+            >>> train = [synthetic_plant(kind="bean", seed=i, n_frames=3, T=16).sequence for i in range(3)]
+            >>> model = OrganModel().fit(train)
+            >>> lo, hi = model.length_range()
+            >>> bool((lo <= model.log_length).all() and (model.log_length <= hi).all())
+            True
+        """
+        eq = torch.from_numpy(self.links().equivalent)
+        here = eq >= 0
+        ll = self.log_length[eq.clamp(min=0)]
+        own = self.log_length[:, None]
+        lo = torch.where(here, ll, torch.inf).amin(1).minimum(own[:, 0])
+        hi = torch.where(here, ll, -torch.inf).amax(1).maximum(own[:, 0])
+        return lo, hi
 
     def sample_keys(self) -> tuple[list[tuple[int, ...]], Tensor]:
         """The botanical keys a sample's organs can take and each one's parent key ``(K',)``: the training keys
@@ -283,15 +358,26 @@ class OrganModel(nn.Module):
             self._reach = (keys, torch.tensor(parent, dtype=torch.long))
         return self._reach
 
-    def _grow(self, seeds: list[int]) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-        """Plants from their seeds (module doc): latent, then organs parent by parent (topology, donors, sizes,
-        rotations). Returns ``chosen (B, K)`` the training organ each key copies (-1: absent), ``length (B, K)``
-        largest lengths, ``turn (B, K)`` rotations about the vertical and ``s_of (B, K, G)`` attachments."""
+    def grow(self, seeds: list[int]) -> PlantDraw:
+        """The organs of plants from their seeds (:meth:`sample_coefficients`; module doc): latent, then organs
+        parent by parent (topology, donors, sizes, rotations), before they are written as frames (:meth:`decode`).
+        Returns a :class:`PlantDraw` over the keys of :meth:`sample_keys`: which training organ each sample organ
+        copies tells, for instance, how much of a sample comes from one training plant.
+
+        Example:
+            >>> from torch4dtree.data.synthetic import synthetic_plant
+            >>> train = [synthetic_plant(kind="bean", seed=i, n_frames=3, T=16).sequence for i in range(3)]
+            >>> model = OrganModel().fit(train)
+            >>> draw = model.grow([0, 1])
+            >>> plants = model.links().plant[draw.chosen[0][draw.chosen[0] >= 0].numpy()]  # donor plant per organ
+            >>> draw.chosen.shape == draw.length.shape == (2, len(model.sample_keys()[0])), len(plants) > 0
+            (True, True)
+        """
         u, noise = self._draws(seeds)
         P = len(self.summary)
         plant = (u[:, 0] * P).long().clamp(max=P - 1)
         eps = noise[:, :LATENT].clamp(-self.settings.c, self.settings.c)
-        w = self.kernel_weights(self.summary[plant] + self.settings.bandwidth * self.summary.std(0) * eps)  # (B, P)
+        w = self.kernel_weights(self.summary[plant] + self.donor_bandwidth() * self.summary.std(0) * eps)  # (B, P)
         chosen = np.full((len(seeds), len(self.sample_keys()[0])), -1, dtype=np.int64)
         turn = np.zeros(chosen.shape)
         links, walk = self.links(), self._walk_plan()
@@ -301,8 +387,10 @@ class OrganModel(nn.Module):
         present = chosen_t >= 0
         rr = chosen_t.clamp(min=0)
         log_len = self.log_length[rr] + self.settings.jitter * noise[:, LATENT:]
+        lo, hi = self.length_range()  # the jitter stays within what the organs standing in for this one span
+        log_len = torch.minimum(torch.maximum(log_len, lo[rr]), hi[rr])
         s_of = torch.where(present[..., None], self.s[rr], 0.0)
-        return chosen_t, torch.where(present, log_len.exp(), 0.0), torch.from_numpy(turn), s_of
+        return PlantDraw(chosen_t, torch.where(present, log_len.exp(), 0.0), torch.from_numpy(turn), s_of)
 
     def _walk_plan(self) -> tuple[list[list[int]], np.ndarray, np.ndarray, np.ndarray]:
         """Per key (:meth:`sample_keys`) its children keys in rank order; the records, azimuths and parent
@@ -362,7 +450,7 @@ class OrganModel(nn.Module):
 
     def _frames(self, chosen: Tensor, length: Tensor, turn: Tensor, s_of: Tensor, times: Tensor, names: list[str]
                 ) -> list[TreeSequence]:
-        """The frames of plants given their organs (:meth:`_grow`): each at ``length x growth(age)``, every parent
+        """The frames of plants given their organs (:meth:`grow`): each at ``length x growth(age)``, every parent
         present wherever one of its children is (:func:`carry_parents`)."""
         b, k = torch.nonzero(chosen >= 0, as_tuple=True)  # plant-major, keys in order: parents first
         r = chosen[b, k]
@@ -383,6 +471,37 @@ class OrganModel(nn.Module):
                               [len(keys[i]) for i in used.tolist()])
         shapes = rotate_about_up(self.shape[r], turn[b, k][:, None, None])
         return assemble_batch(b, k, key_parent, sizes[b, local[k]], shapes, s_of[b, k], times, names)
+
+
+def latent_weights(summary: Tensor, latent: Tensor, bandwidth: float) -> Tensor:
+    """``summary (P, F)`` the training plants' latents, ``latent (..., F)`` -> ``(..., P)`` Gaussian kernel weights
+    (sum 1; uniform where every weight underflows) of width ``bandwidth`` in standard deviations of ``summary``'s
+    features (a constant feature counts as one of width :data:`FLAT_FEATURE`).
+
+    Example:
+        >>> w = latent_weights(torch.tensor([[0.0], [2.0]]).double(), torch.tensor([[0.0], [1.0]]).double(), 1.0)
+        >>> w.round(decimals=2).tolist()
+        [[0.73, 0.27], [0.5, 0.5]]
+    """
+    scale = summary.std(0).clamp_min(FLAT_FEATURE)
+    d2 = ((latent[..., None, :] - summary) / scale).square().sum(-1)
+    w = torch.exp(-0.5 * d2 / bandwidth ** 2)
+    total = w.sum(-1, keepdim=True)
+    return torch.where(total > 0, w / total.clamp_min(torch.finfo(w.dtype).tiny), 1.0 / w.shape[-1])
+
+
+def effective_donors(summary: Tensor, bandwidth: float) -> Tensor:
+    """The mean over the training plants ``summary (P, F)`` of the effective number of plants (Kish's
+    ``1 / sum_j w_j^2``, between 1 and ``P``) among the kernel weights (:func:`latent_weights`) at each one's own
+    latent: how many plants a sample drawn around that plant takes its organs from.
+
+    Example:
+        >>> summary = torch.tensor([[0.0], [1.0], [2.0]])
+        >>> round(float(effective_donors(summary, 0.01)), 2), round(float(effective_donors(summary, 100.0)), 2)
+        (1.0, 3.0)
+    """
+    w = latent_weights(summary, summary, bandwidth)
+    return (1.0 / w.square().sum(-1)).mean()
 
 
 def pick_donors(weights: Tensor, u: Tensor) -> Tensor:
