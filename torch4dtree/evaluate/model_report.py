@@ -57,6 +57,7 @@ def model_report(model: Any, dataset: str | Path, seqs: Sequence[Any], seconds: 
     if model_kind(model) == "organs":
         return {"model": "organs", "dataset": _dataset(dataset, seqs),
                 "organs": {k: rep[k] for k in ("plants", "keys", "organs", "ages")},
+                "bandwidth_used": float(model.donor_bandwidth()),
                 "settings": model.settings.to_dict(), "seconds": {"fit": rep["seconds"], **seconds}}
     pop = rep["population"]
     return {
@@ -84,8 +85,8 @@ def _organ_markdown(r: dict[str, Any]) -> list[str]:
     o, st = r["organs"], r["settings"]
     return [f"Organ table: {o['organs']} organs of {o['plants']} plants at {o['keys']} botanical keys; generated "
             f"plants have {o['ages']} frames.",
-            f"Settings: bandwidth {st['bandwidth']:g}, persistence {st['persistence']:g}, jitter {st['jitter']:g}, "
-            f"c {st['c']:g}."]
+            f"Settings: bandwidth {st['bandwidth']:g} (used: {r.get('bandwidth_used', st['bandwidth']):.3g}, widened "
+            f"for enough donor plants), persistence {st['persistence']:g}, jitter {st['jitter']:g}, c {st['c']:g}."]
 
 
 def _bound_text(space: dict[str, Any]) -> str:
