@@ -139,6 +139,7 @@ SPUR_WINDOWS = 0.1
 # child carries: its subtree's length off its own longest path, plus one window); 0.1-0.25 keep the herbaceous
 # identities of "straightest" and fix the woody ones, 0.5 loses tomato and bean leaves (docs/experiments.md)
 CARRY_RADIANS = 0.15
+OWN_INCOMING = True
 DIRECTED = ("straightest", "continuation")  # the rules that measure directions
 # divisor floor of a product of vector norms: a zero-length direction gives an angle instead of nan
 MIN_NORM = 1e-300
@@ -241,12 +242,16 @@ def continuation_children(xyz: np.ndarray, parent: np.ndarray, order: np.ndarray
     path = [length[c] + reach[c] for c in range(n)]  # longest path from a node's parent through it
     down = [length[c] + weight[c] for c in range(n)]  # what hangs from a node's parent through that node
     best = np.full(n, -1)
+    own = [0.0] * n  # arc length from the start of the branch a node lies on (as decided above it) to the node
     floor = 0.0
     if hierarchy in DIRECTED:
         if window is not None and not window > 0:
             raise TreeError(f"{where}: the direction window must be positive, got {window}")
         floor = default_window(xyz, parent, edge, children) if window is None else float(window)
     for v in order.tolist():
+        p = int(parent[v])
+        if p >= 0:
+            own[v] = (own[p] if best[p] == v else 0.0) + length[v]
         kids = children[v]
         if len(kids) < 2:  # a leaf, or a node inside a branch: every rule continues into its only child
             if kids:
@@ -260,7 +265,8 @@ def continuation_children(xyz: np.ndarray, parent: np.ndarray, order: np.ndarray
             w = floor
         else:
             w = organ_window(np.array([path[c] for c in kids]), floor)
-        back = _point_up(xyz, parent, edge, v, w) if w > 0 else None
+        # the incoming direction is the branch's own: a shoot's first internode, never the stem it leaves
+        back = _point_up(xyz, parent, edge, v, min(w, own[v]) if OWN_INCOMING and own[v] > 0 else w) if w > 0 else None
         if back is None:
             best[v] = heaviest
             continue
