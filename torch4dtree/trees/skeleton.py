@@ -13,7 +13,9 @@ into the child the rule picks; every other child starts a side branch, decompose
   less (a woody tree's overtaken leader, a sympodial shoot's zig-zag); a leaf or a young maize leaf, carrying
   little, never outweighs the stem's straightness.
 * ``"straightest"`` (default): the child whose first stretch (a window of arc length) turns least from the
-  branch's incoming direction, among children whose subtree is not negligible (spurs); the heaviest
+  branch's incoming direction (measured back along the branch itself, at most to where it starts: at a shoot's
+  first node its first internode, not the stem it leaves, so an upright lateral there does not take the shoot
+  over as it grows), among children whose subtree is not negligible (spurs); the heaviest
   where there is no incoming direction (at the root). Stems, rachises and shoots run straight through
   their nodes while leaves and leaflets leave at an angle, whichever is longer on that day. The window at a
   branch point is half the length of the side organ leaving there, at least 2 % of the plant's extent
