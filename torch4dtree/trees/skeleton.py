@@ -141,7 +141,6 @@ SPUR_WINDOWS = 0.1
 # child carries: its subtree's length off its own longest path, plus one window); 0.1-0.25 keep the herbaceous
 # identities of "straightest" and fix the woody ones, 0.5 loses tomato and bean leaves (docs/experiments.md)
 CARRY_RADIANS = 0.15
-OWN_INCOMING = True
 DIRECTED = ("straightest", "continuation")  # the rules that measure directions
 # divisor floor of a product of vector norms: a zero-length direction gives an angle instead of nan
 MIN_NORM = 1e-300
@@ -268,7 +267,7 @@ def continuation_children(xyz: np.ndarray, parent: np.ndarray, order: np.ndarray
         else:
             w = organ_window(np.array([path[c] for c in kids]), floor)
         # the incoming direction is the branch's own: a shoot's first internode, never the stem it leaves
-        back = _point_up(xyz, parent, edge, v, min(w, own[v]) if OWN_INCOMING and own[v] > 0 else w) if w > 0 else None
+        back = _point_up(xyz, parent, edge, v, min(w, own[v]) if own[v] > 0 else w) if w > 0 else None
         if back is None:
             best[v] = heaviest
             continue
