@@ -13,7 +13,9 @@ into the child the rule picks; every other child starts a side branch, decompose
   less (a woody tree's overtaken leader, a sympodial shoot's zig-zag); a leaf or a young maize leaf, carrying
   little, never outweighs the stem's straightness.
 * ``"straightest"`` (default): the child whose first stretch (a window of arc length) turns least from the
-  branch's incoming direction, among children whose subtree is not negligible (spurs); the heaviest
+  branch's incoming direction (measured back along the branch itself, at most to where it starts: at a shoot's
+  first node its first internode, not the stem it leaves, so an upright lateral there does not take the shoot
+  over as it grows), among children whose subtree is not negligible (spurs); the heaviest
   where there is no incoming direction (at the root). Stems, rachises and shoots run straight through
   their nodes while leaves and leaflets leave at an angle, whichever is longer on that day. The window at a
   branch point is half the length of the side organ leaving there, at least 2 % of the plant's extent
@@ -241,12 +243,16 @@ def continuation_children(xyz: np.ndarray, parent: np.ndarray, order: np.ndarray
     path = [length[c] + reach[c] for c in range(n)]  # longest path from a node's parent through it
     down = [length[c] + weight[c] for c in range(n)]  # what hangs from a node's parent through that node
     best = np.full(n, -1)
+    own = [0.0] * n  # arc length from the start of the branch a node lies on (as decided above it) to the node
     floor = 0.0
     if hierarchy in DIRECTED:
         if window is not None and not window > 0:
             raise TreeError(f"{where}: the direction window must be positive, got {window}")
         floor = default_window(xyz, parent, edge, children) if window is None else float(window)
     for v in order.tolist():
+        p = int(parent[v])
+        if p >= 0:
+            own[v] = (own[p] if best[p] == v else 0.0) + length[v]
         kids = children[v]
         if len(kids) < 2:  # a leaf, or a node inside a branch: every rule continues into its only child
             if kids:
@@ -260,7 +266,8 @@ def continuation_children(xyz: np.ndarray, parent: np.ndarray, order: np.ndarray
             w = floor
         else:
             w = organ_window(np.array([path[c] for c in kids]), floor)
-        back = _point_up(xyz, parent, edge, v, w) if w > 0 else None
+        # the incoming direction is the branch's own: a shoot's first internode, never the stem it leaves
+        back = _point_up(xyz, parent, edge, v, min(w, own[v]) if own[v] > 0 else w) if w > 0 else None
         if back is None:
             best[v] = heaviest
             continue
