@@ -16,8 +16,8 @@
    earlier plant opened, and an unmatched one opens a slot whose branch joins the union representative
    (:func:`grow_union`). So a branch the reference lacks opens one slot that later plants can share, not one slot
    per plant. These registrations use the cross-sequence settings (:class:`~torch4dtree.settings.CrossSettings`:
-   node ranks on every axis, lp 100 relative, organs kept in their order along the parent by default); the layout keeps the
-   space's metric. Until a slot is opened, the batched registrations onto the reference are reused; the later
+   node ranks on every axis, lp 100 relative, organs kept in their order along the parent by default); the layout
+   keeps the space's metric. Until a slot is opened, the batched registrations onto the reference are reused; the later
    ones are one call per plant. The layout keeps at most ``max_slots`` slots: each slot carries the squared
    weighted length of the training branches placed in it, and when the union has grown past ``SLOT_SLACK``
    times the bound (and once at the end) only the ``max_slots`` slots carrying the most are kept, closed under
