@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from torch4dtree.data.synthetic import synthetic_plant
-from torch4dtree.model import organs
+from torch4dtree.model import donors, organs
 from torch4dtree.model.checkpoint import CheckpointError, load, save_model
 from torch4dtree.model.fourd import sequence_validity
 from torch4dtree.model.organ_forecast import forecast_organs
@@ -250,7 +250,7 @@ def test_a_few_training_plants_are_mixed_not_copied(population: tuple[list[TreeS
     m = OrganModel().fit(population[0][:4])
     assert copies_of_one_plant(m, 40) <= 0.2  # a memoriser: 1.0
     assert m.donor_bandwidth() > m.settings.bandwidth
-    assert organs.effective_donors(m.summary, m.donor_bandwidth()) >= organs.MIN_DONORS - 1e-6
+    assert donors.effective_donors(m.summary, m.donor_bandwidth()) >= donors.MIN_DONORS - 1e-6
     save_model(m, tmp_path / "tiny.pt")
     back = load(tmp_path / "tiny.pt")
     assert back.donor_bandwidth() == m.donor_bandwidth()

@@ -40,6 +40,7 @@ from torch import Tensor, nn
 from ..curves.srvf import interpolate_curve
 from ..settings import OrganSettings
 from ..trees.structures import Trees, TreeSequence
+from .donors import effective_donors, latent_weights, pick_donors, widened_bandwidth
 from .organ_table import UP, OrganLinks, organ_links, organ_table
 
 __all__ = ["OrganModel", "OrganModelError", "PlantDraw", "assemble_batch", "assemble_frames", "carry_parents",
@@ -50,25 +51,12 @@ LATENT = 3
 # keep a sampled organ in a frame when it is at least this share of its plant's final main-branch length (a shorter
 # one would be a zero-length branch once written)
 MIN_LENGTH = 1e-3
-# a latent feature with no spread (every training plant alike) is measured in these units instead of by its zero
-# standard deviation
-FLAT_FEATURE = 1e-9
 # plants grown together by OrganModel.decode (bounds the memory of a chunk's organ curves)
 DECODE_CHUNK = 64
 # most botanical keys a sample can take (OrganModel.sample_keys): deep hierarchies with many children per organ would
 # otherwise open keys exponentially in their depth (five Pheno4D tomatoes: not done in 5 min); keys open parents
 # first, so the last ranks of the deepest organs are the ones left out
 MAX_SAMPLE_KEYS = 50_000
-# the latent kernel keeps at least this many effective donors (Kish's ``1 / sum w^2``) at the training plants' own
-# latents, on average (OrganModel.donor_bandwidth): with few training plants a fixed width puts most of the weight on
-# the plant the latent was drawn around, and samples copy it whole. Three: populations of 20 plants keep 3.8-4.1 at
-# the default width, so it widens only for fewer plants (about 15 or less)
-MIN_DONORS = 3.0
-# the widest kernel the search for MIN_DONORS tries, in standard deviations of the latent (its weights are then
-# nearly uniform over any population's latents, whose features lie within a few standard deviations)
-MAX_BANDWIDTH = 8.0
-# bisection steps of that search (the width to 2**-20 of the search's log range)
-BANDWIDTH_STEPS = 20
 
 
 class OrganModelError(ValueError):
@@ -254,11 +242,10 @@ class OrganModel(nn.Module):
         return self.decode(self.sample_coefficients(n, generator))
 
     def donor_bandwidth(self) -> float:
-        """The latent kernel's width in standard deviations: the least one, at or above ``settings.bandwidth``, whose
-        weights at the training plants' own latents keep on average :data:`MIN_DONORS` effective donors
-        (:func:`effective_donors`; :data:`MAX_BANDWIDTH` when no width up to it does). On populations of tens of
-        plants ``settings.bandwidth`` already does and stays; on a few plants the kernel widens, so a sample's
-        organs are drawn from several plants instead of copying the one its latent was drawn around.
+        """The latent kernel's width in standard deviations: the least one, at or above ``settings.bandwidth``, that
+        keeps on average :data:`~torch4dtree.model.donors.MIN_DONORS` effective donors at the training plants' own
+        latents (:func:`~torch4dtree.model.donors.widened_bandwidth`): on a few plants the kernel widens, so a
+        sample's organs are drawn from several plants instead of copying the one its latent was drawn around.
 
         Example:
             >>> m = OrganModel(OrganSettings(bandwidth=0.5))
@@ -269,15 +256,7 @@ class OrganModel(nn.Module):
         """
         self.check_fitted()
         if self._bandwidth is None:
-            lo = float(self.settings.bandwidth)
-            hi = max(lo, MAX_BANDWIDTH)
-            if float(effective_donors(self.summary, lo)) >= MIN_DONORS:
-                hi = lo
-            elif float(effective_donors(self.summary, hi)) >= MIN_DONORS:
-                for _ in range(BANDWIDTH_STEPS):  # geometric bisection: the donors grow with the width
-                    mid = math.sqrt(lo * hi)
-                    lo, hi = (lo, mid) if float(effective_donors(self.summary, mid)) >= MIN_DONORS else (mid, hi)
-            self._bandwidth = hi
+            self._bandwidth = widened_bandwidth(self.summary, float(self.settings.bandwidth))
         return self._bandwidth
 
     def kernel_weights(self, latent: Tensor) -> Tensor:
@@ -471,49 +450,6 @@ class OrganModel(nn.Module):
                               [len(keys[i]) for i in used.tolist()])
         shapes = rotate_about_up(self.shape[r], turn[b, k][:, None, None])
         return assemble_batch(b, k, key_parent, sizes[b, local[k]], shapes, s_of[b, k], times, names)
-
-
-def latent_weights(summary: Tensor, latent: Tensor, bandwidth: float) -> Tensor:
-    """``summary (P, F)`` the training plants' latents, ``latent (..., F)`` -> ``(..., P)`` Gaussian kernel weights
-    (sum 1; uniform where every weight underflows) of width ``bandwidth`` in standard deviations of ``summary``'s
-    features (a constant feature counts as one of width :data:`FLAT_FEATURE`).
-
-    Example:
-        >>> w = latent_weights(torch.tensor([[0.0], [2.0]]).double(), torch.tensor([[0.0], [1.0]]).double(), 1.0)
-        >>> w.round(decimals=2).tolist()
-        [[0.73, 0.27], [0.5, 0.5]]
-    """
-    scale = summary.std(0).clamp_min(FLAT_FEATURE)
-    d2 = ((latent[..., None, :] - summary) / scale).square().sum(-1)
-    w = torch.exp(-0.5 * d2 / bandwidth ** 2)
-    total = w.sum(-1, keepdim=True)
-    return torch.where(total > 0, w / total.clamp_min(torch.finfo(w.dtype).tiny), 1.0 / w.shape[-1])
-
-
-def effective_donors(summary: Tensor, bandwidth: float) -> Tensor:
-    """The mean over the training plants ``summary (P, F)`` of the effective number of plants (Kish's
-    ``1 / sum_j w_j^2``, between 1 and ``P``) among the kernel weights (:func:`latent_weights`) at each one's own
-    latent: how many plants a sample drawn around that plant takes its organs from.
-
-    Example:
-        >>> summary = torch.tensor([[0.0], [1.0], [2.0]])
-        >>> round(float(effective_donors(summary, 0.01)), 2), round(float(effective_donors(summary, 100.0)), 2)
-        (1.0, 3.0)
-    """
-    w = latent_weights(summary, summary, bandwidth)
-    return (1.0 / w.square().sum(-1)).mean()
-
-
-def pick_donors(weights: Tensor, u: Tensor) -> Tensor:
-    """``weights (B, P) >= 0`` (each row with a positive one), uniforms ``u (B,)`` in ``[0, 1)`` -> ``(B,)`` one index
-    per row drawn in proportion to its weights (inverse CDF: one uniform a draw, so draws batch over rows).
-
-    Example:
-        >>> pick_donors(torch.tensor([[0.0, 1.0, 3.0], [1.0, 0.0, 0.0]]), torch.tensor([0.3, 0.9])).tolist()
-        [2, 0]
-    """
-    cdf = weights.cumsum(-1)
-    return torch.searchsorted(cdf, u[:, None] * cdf[:, -1:], right=True).reshape(-1).clamp(max=weights.shape[-1] - 1)
 
 
 def carry_parents(sizes: Tensor, key_parent: Tensor, depth: Sequence[int]) -> Tensor:
