@@ -20,7 +20,7 @@ from torch4dtree.evaluate import generative as gen
 from torch4dtree.evaluate import generative_metrics as metrics
 from torch4dtree.evaluate import generative_split as split
 from torch4dtree.evaluate.data import MAX_FOLDS, MORPHO_DRAWS, QUICK_MORPHO_DRAWS
-from torch4dtree.evaluate.generative_organs import RepeatedPairs, encode_plants, event_rates, organ_events
+from torch4dtree.evaluate.generative_organs import POINT_RULE, RepeatedPairs, encode_plants, event_rates, organ_events
 from torch4dtree.evaluate.morphometrics import compare_populations, population_curves
 from torch4dtree.model.organs import OrganModel
 from torch4dtree.temporal import register_trajectories
@@ -267,7 +267,8 @@ def test_organ_model_rows_exist_and_are_finite(report: dict) -> None:
         assert 0.0 <= e["shrink"] <= 1.0 and 0.0 <= e["vanish"] <= 1.0 and e["organ_steps"] > 0, who
     f = r["organ_forecast"]
     assert f["plants"] == 2 and 0 <= f["wins_vs_both"] <= min(f["wins_vs_last"], f["wins_vs_mean"])
-    for key in ("organs", "organs_draw", "last", "mean"):
+    assert f["point"] == POINT_RULE
+    for key in ("organs", "organs_mean", "organs_draw", "last", "mean"):
         assert math.isfinite(f[key]["mean"]) and f[key]["min"] >= 0, key
 
 

@@ -43,9 +43,10 @@ spans what the tree PCA misses of all these frames. Its pool is ``max(h, MORPHO_
 draw ``h`` of them without replacement; its novelty is measured against the encoded training plants. Beside it:
 the share of held-out squared SRVF norm at botanical keys no training plant had (``outside_keys_share``), organs
 shrinking / vanishing between frames (its samples, the paper model's, training and held-out plants) and its
-forecast of the second half (:func:`~torch4dtree.model.organ_forecast.forecast_organs`; its point the mean of
-``FORECAST_DRAWS`` continuations in the layout, one continuation's error beside it) against "the last observed frame
-stays" and the 4D mean.
+forecast of the second half (:func:`~torch4dtree.model.organ_forecast.forecast_organs`; its point
+:func:`~torch4dtree.model.organ_forecast.forecast_point` of ``FORECAST_DRAWS`` continuations in the layout with the
+encoded training plants' average as the prior, their plain mean and one continuation's error beside it) against "the
+last observed frame stays" and the 4D mean.
 
 **Generators** (each draw: as many samples as held-out plants, the usual equal-size protocol; ``DRAWS = 50`` draws
 per fold, 4 when ``quick``; metrics per draw, summarised over all draws of all folds):
@@ -112,7 +113,7 @@ from ..temporal.trajectory import resample_trajectory
 from ..trees.structures import TreeSequence
 from .data import EvalData, EvalSettings, Plant4D, primary_source
 from .generative_metrics import distance4d, distance_matrix, novelty, set_metrics, within_draw
-from .generative_organs import encode_plants, event_rates, organ_forecasts, outside_keys_share
+from .generative_organs import POINT_RULE, encode_plants, event_rates, organ_forecasts, outside_keys_share
 from .generative_report import markdown
 from .generative_split import heldout_by_kind, load_heldout, splits
 from .morphometrics import AGES, compare_populations, files_curve, population_curves
@@ -392,7 +393,7 @@ def _fold(train: list[Plant4D], held: list[Plant4D], settings: EvalSettings, gen
     recon_t = distance4d(t_alpha, _pad(_reconstruct(model, t_alpha[..., :k]), r))
     mean_t = distance4d(t_alpha, mean.expand_as(t_alpha))
     t0 = time.perf_counter()
-    organ_fc = organ_forecasts(model, organs, held_seqs, encs, gen)
+    organ_fc = organ_forecasts(model, organs, held_seqs, encs, train_seqs, enc_train, gen)
     organ_forecast_seconds = (time.perf_counter() - t0) / len(held)
     plants = []
     for i, (p, e) in enumerate(zip(held, encs)):
@@ -497,11 +498,14 @@ def _kind(plants: list[Plant4D], settings: EvalSettings, offset: int, progress: 
                      "tree_pca": {k: summary(f["tree_pca"][k] for f in fc) for k in ("model", "last", "mean")},
                      "plants": len(fc), "wins_vs_last": sum(f["model"] < f["last"] for f in fc),
                      "wins_vs_mean": sum(f["model"] < f["mean"] for f in fc)},
-        "organ_forecast": {**{k: summary(f[k] for f in ofc) for k in ("organs", "organs_draw", "last", "mean")},
+        "organ_forecast": {"point": POINT_RULE,
+                           **{k: summary(f[k] for f in ofc) for k in ("organs", "organs_mean", "organs_draw", "last",
+                                                                      "mean")},
                            "final_length": {k: summary(f["final_length"][k] for f in ofc) for k in ("organs", "last")},
                            "plants": len(ofc), "wins_vs_last": sum(f["organs"] < f["last"] for f in ofc),
                            "wins_vs_mean": sum(f["organs"] < f["mean"] for f in ofc),
                            "wins_vs_both": sum(f["organs"] < min(f["last"], f["mean"]) for f in ofc),
+                           "mean_wins_vs_both": sum(f["organs_mean"] < min(f["last"], f["mean"]) for f in ofc),
                            "draw_wins_vs_both": sum(f["organs_draw"] < min(f["last"], f["mean"]) for f in ofc)},
     }
 

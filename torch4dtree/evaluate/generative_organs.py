@@ -21,8 +21,10 @@ Also here, measured on 4D trees whatever made them:
 * :func:`organ_forecast`: the organ model's forecast (:func:`~torch4dtree.model.organ_forecast.forecast_organs`)
   of a held-out plant's second half, beside "the last observed frame stays", both written in the layout as a
   whole sequence (observed frames, then the guess) and read at the plant's own frame times, and the 4D mean. The
-  forecast's point is the mean of several continuations in the layout (its conditional mean), since the baselines
-  are points too.
+  forecast's point (:data:`POINT_RULE`, :func:`~torch4dtree.model.organ_forecast.forecast_point`), since the
+  baselines are points too: the mean of several continuations in the layout at the slots where the observed plant
+  has an organ, averaged at every other slot with the training plants' average at the same ages (written in the
+  layout as the held-out plants are).
 """
 
 from __future__ import annotations
@@ -37,7 +39,7 @@ import torch
 from torch import Tensor
 
 from ..model import FourDTreeModel, OrganModel
-from ..model.organ_forecast import forecast_organs
+from ..model.organ_forecast import NEW_SLOT_WEIGHT, forecast_organs, forecast_point, seen_slots
 from ..model.organ_table import plant_organs
 from ..parallel import run_tasks
 from ..settings import RegistrationSettings
@@ -46,8 +48,8 @@ from ..temporal.registration import time_warp_trajectory
 from ..temporal.within import AlignedSequence, register_sequence
 from ..trees.structures import Trees, TreeSequence
 
-__all__ = ["FORECAST_DRAWS", "SHRINK_TOL", "RepeatedPairs", "encode_plants", "event_rates", "organ_events",
-           "organ_forecast", "organ_forecasts", "outside_keys_share"]
+__all__ = ["FORECAST_DRAWS", "POINT_RULE", "SHRINK_TOL", "RepeatedPairs", "encode_plants", "event_rates",
+           "organ_events", "organ_forecast", "organ_forecasts", "outside_keys_share", "training_average"]
 
 # an organ shrinks between two frames when it loses more than this share of its length (skeleton noise and the
 # registration's splits move lengths by a few per cent)
@@ -56,6 +58,9 @@ SHRINK_TOL = 0.1
 SAME_TIME = 1e-9
 # continuations of the organ model averaged into its forecast point in the ground metric (organ_forecast)
 FORECAST_DRAWS = 8
+# the organ forecast's point (organ_forecast), as the report names it
+POINT_RULE = (f"mean of {FORECAST_DRAWS} continuations at the plant's slots; elsewhere {NEW_SLOT_WEIGHT:g} of it, "
+              f"{1 - NEW_SLOT_WEIGHT:g} the training plants' average")
 
 
 def outside_keys_share(organs: OrganModel, plant: TreeSequence) -> float:
@@ -224,14 +229,17 @@ def _whole(observed: TreeSequence, future: TreeSequence) -> TreeSequence:
 
 
 def organ_forecast(paper: FourDTreeModel, organs: OrganModel, plant: TreeSequence, truth: Tensor, mean: Tensor,
-                   generator: torch.Generator, draws: int = FORECAST_DRAWS) -> dict[str, Any] | None:
+                   prior: Tensor, generator: torch.Generator, draws: int = FORECAST_DRAWS) -> dict[str, Any] | None:
     """Forecast errors of one held-out plant's second half (``n // 2`` frames observed; module doc).
 
-    The organ model's point is the **mean of** ``draws`` **continuations' layout features** (its conditional mean
-    in the ground metric, as the 4D mean baseline is the population's mean): one continuation is a draw of the
-    conditional distribution, whose expected squared distance to the truth is the point's plus the distribution's
-    spread, so a single draw loses to any point guess of the same quality (``organs_draw``: the first
-    continuation's error, for scale).
+    The organ model's point (:data:`POINT_RULE`) is :func:`~torch4dtree.model.organ_forecast.forecast_point` of
+    ``draws`` continuations' layout features: their mean (the conditional mean in the ground metric) at the slots
+    where the observed plant has an organ (its last observed frame as written in the layout), averaged with
+    ``prior`` at the other slots, where new organs go and a few continuations disagree (docs/method.md §5,
+    forecasting). One continuation is a draw of the conditional distribution, whose expected squared distance to
+    the truth is the point's plus the distribution's spread, so a single draw loses to any point guess of the same
+    quality (``organs_draw``: the first continuation's error, for scale; ``organs_mean``: the continuations' mean
+    at every slot).
 
     Args:
         paper: the fold's paper model (its layout is the ground metric).
@@ -239,14 +247,15 @@ def organ_forecast(paper: FourDTreeModel, organs: OrganModel, plant: TreeSequenc
         plant: the held-out 4D tree.
         truth: ``(n - n // 2, F)`` its forecast frames' layout features in its whole-sequence encoding.
         mean: ``(n - n // 2, F)`` the 4D mean's features at the same ages (the mean baseline).
+        prior: ``(n - n // 2, F)`` the population's expectation at the same ages (:func:`training_average`).
         generator: the forecast's random stream.
-        draws: continuations averaged into the point (at least 1).
+        draws: continuations in the point (at least 1).
 
     Returns:
-        ``{"organs", "organs_draw", "last", "mean"}``: mean tree distance in the layout over the forecast frames
-        (``last``: the last observed frame kept, encoded as each continuation is); ``final_length``: the relative
-        error of the last frame's total length of the continuations (median) and of the last observed frame;
-        ``None`` below 2 frames.
+        ``{"organs", "organs_mean", "organs_draw", "last", "mean"}``: mean tree distance in the layout over the
+        forecast frames (``last``: the last observed frame kept, encoded as each continuation is); ``final_length``:
+        the relative error of the last frame's total length of the continuations (median) and of the last observed
+        frame; ``None`` below 2 frames.
     """
     n = len(plant)
     half = n // 2
@@ -269,17 +278,39 @@ def organ_forecast(paper: FourDTreeModel, organs: OrganModel, plant: TreeSequenc
 
     fcs = [encoded(f) for f in forecast_organs(organs, observed, n=draws, generator=generator)]
     last_feats, last_final = encoded(last)
-    guesses = {"organs": torch.stack([f for f, _ in fcs]).mean(0), "organs_draw": fcs[0][0], "last": last_feats,
+    conts = torch.stack([f for f, _ in fcs])
+    point = forecast_point(conts, seen_slots(last_feats, paper.population.ref_points.shape[0]), prior.to(truth))
+    guesses = {"organs": point, "organs_mean": conts.mean(0), "organs_draw": fcs[0][0], "last": last_feats,
                "mean": mean.to(truth)}
     errs = {key: float((x - truth).norm(dim=-1).mean()) for key, x in guesses.items()}
     finals = torch.tensor([e for _, e in fcs], dtype=torch.float64)
     return {**errs, "final_length": {"organs": float(finals.median()), "last": last_final}}
 
 
+def training_average(features: Sequence[Tensor], times: Sequence[Tensor], since: Tensor) -> Tensor:
+    """``(m, F)`` the training plants' average layout features at ``since (m,)`` time after each one's first frame
+    (as the held-out plant's ages are counted), each plant's ``features (n_i, F)`` read at its frame ``times (n_i,)``
+    linearly between frames and held at its first / last frame outside them.
+
+    Example:
+        >>> f = [torch.tensor([[0.0], [2.0]]), torch.tensor([[4.0], [4.0]])]
+        >>> training_average(f, [torch.tensor([0.0, 2.0]), torch.tensor([5.0, 6.0])], torch.tensor([1.0]))
+        tensor([[2.5000]])
+    """
+    if not features or len(features) != len(times):
+        raise ValueError(f"need features and times of the same training plants, got {len(features)} and {len(times)}")
+    return torch.stack([_read_at(f, t, t[0] + since.to(t)) for f, t in zip(features, times)]).mean(0)
+
+
 def organ_forecasts(paper: FourDTreeModel, organs: OrganModel, plants: Sequence[TreeSequence], encodings: Sequence[Any],
-                    generator: torch.Generator) -> list[dict[str, Any] | None]:
+                    training: Sequence[TreeSequence], training_encodings: Sequence[Any], generator: torch.Generator
+                    ) -> list[dict[str, Any] | None]:
     """:func:`organ_forecast` of every held-out plant, ``encodings`` their ``paper.population.transform``; the 4D
-    mean baseline at each plant's ages (time since its first frame over the training plants' mean duration)."""
+    mean baseline at each plant's ages (time since its first frame over the training plants' mean duration); the
+    point's prior the ``training`` plants' layout features (``training_encodings``, their transforms) averaged at
+    the same times since their first frame (:func:`training_average`)."""
+    train_feats = [e.aligned.features() for e in training_encodings]
+    train_times = [s.times for s in training]
     out: list[dict[str, Any] | None] = []
     for seq, e in zip(plants, encodings):
         half = len(seq) // 2
@@ -289,5 +320,7 @@ def organ_forecasts(paper: FourDTreeModel, organs: OrganModel, plants: Sequence[
         u = ((seq.times[half:] - seq.times[0]).to(torch.float64) / float(paper.duration)).clamp(0, 1)
         mean = paper.population.pca.inverse_features(time_warp_trajectory(paper.mean.trajectory,
                                                                           u.to(paper.mean.trajectory)))
-        out.append(organ_forecast(paper, organs, seq, e.aligned.features()[half:], mean, generator))
+        truth = e.aligned.features()[half:]
+        prior = training_average([f.to(truth) for f in train_feats], train_times, seq.times[half:] - seq.times[0])
+        out.append(organ_forecast(paper, organs, seq, truth, mean, prior, generator))
     return out
