@@ -116,8 +116,11 @@ def _forecast_tables(r: dict[str, Any]) -> list[str]:
         lines += md_table(["forecast of the organ model (second half; guesses written in the layout with the "
                            "observed frames)", "tree distance in the layout", "final total length, relative error",
                            "organ model wins"],
-                          [["organ model (mean of its continuations)", _pm(of["organs"]), _pm(fl["organs"], True),
-                            f"{of['wins_vs_both']} / {of['plants']} against both"],
+                          [[f"organ model ({of.get('point', 'mean of its continuations')})", _pm(of["organs"]),
+                            _pm(fl["organs"], True), f"{of['wins_vs_both']} / {of['plants']} against both"],
+                           *([["organ model, mean of its continuations", _pm(of["organs_mean"]), "-",
+                               f"{of['mean_wins_vs_both']} / {of['plants']} against both"]] if "organs_mean" in of
+                             else []),
                            *([["organ model, one continuation", _pm(of["organs_draw"]), "-",
                                f"{of['draw_wins_vs_both']} / {of['plants']} against both"]] if "organs_draw" in of
                              else []),
