@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import tempfile
 import time
 import warnings
 from collections.abc import Mapping, Sequence
@@ -246,13 +245,8 @@ def _model_figures(data: EvalData, settings: EvalSettings, lay: FigureLayout, ou
     paper.fit(seqs)
     note = f"the paper's model fitted on {len(plants)} {kind} plants ({data.source}), {paper.n_modes} modes, " \
            f"n_t = {lay.n_t}"
-    with tempfile.TemporaryDirectory(dir=out) as sub:  # its samples.png is kept as samples_paper.png
-        for f in write_model_figures(paper, Path(sub), lay.cell, settings.seed, note=note, real=seqs):
-            name = Path(f).name
-            target = out / ("samples_paper.png" if name == "samples.png" else name)
-            Path(f).replace(target)
-            written.append(str(target))
-    return written
+    return written + write_model_figures(paper, out, lay.cell, settings.seed, note=note, real=seqs,
+                                         samples_name="samples_paper.png")
 
 
 # ------------------------------------------------------------------------------------- driver

@@ -171,27 +171,28 @@ def _titled(title: str, note: str | None) -> str:
 
 
 def write_sample_figure(model: Any, out: Path, size: int, seed: int, n_samples: int = 3, note: str | None = None,
-                        real: Sequence[Any] = ()) -> str:
-    """``samples.png`` in ``out``: ``n_samples`` samples of ``model`` (either model; ``seed``), one row each, and
-    below them up to as many ``real`` plants (e.g. the training plants), at the same normalised ages in columns,
-    one camera and one scale, each cell captioned with its time and a scale bar below
+                        real: Sequence[Any] = (), name: str = "samples.png") -> str:
+    """``name`` (``samples.png``) in ``out``: ``n_samples`` samples of ``model`` (either model; ``seed``), one row
+    each, and below them up to as many ``real`` plants (e.g. the training plants), at the same normalised ages in
+    columns, one camera and one scale, each cell captioned with its time and a scale bar below
     (:func:`.figures.samples_figure`; ``size`` pixels of a cell's longer side, ``note`` a second title line).
     Returns the path written."""
     from .figures import samples_figure
 
-    return str(samples_figure(model, real, out / "samples.png", seed, n_samples, note=note, cell=size))
+    return str(samples_figure(model, real, out / name, seed, n_samples, note=note, cell=size))
 
 
 def write_model_figures(model: Any, out: Path, size: int, seed: int, n_samples: int = 3, note: str | None = None,
-                        real: Sequence[Any] = ()) -> list[str]:
-    """``mean.png``, ``modes.png``, ``samples.png`` in ``out`` for a :class:`~torch4dtree.model.FourDTreeModel`,
-    ``samples.png`` only for an :class:`~torch4dtree.model.OrganModel` (module doc; ``size`` pixels per grid cell,
-    ``seed`` of the samples); ``note`` (e.g. what the model was fitted on) is a second title line of each. Returns
-    the paths written. ``real`` plants are shown below the samples (:func:`write_sample_figure`)."""
+                        real: Sequence[Any] = (), samples_name: str = "samples.png") -> list[str]:
+    """``mean.png``, ``modes.png`` and the samples (``samples_name``) in ``out`` for a
+    :class:`~torch4dtree.model.FourDTreeModel`, the samples only for an :class:`~torch4dtree.model.OrganModel` (module
+    doc; ``size`` pixels per grid cell, ``seed`` of the samples); ``note`` (e.g. what the model was fitted on) is a
+    second title line of each. Returns the paths written. ``real`` plants are shown below the samples
+    (:func:`write_sample_figure`)."""
     from ..render import render_grid, save_image
 
     if model_kind(model) == "organs":
-        return [write_sample_figure(model, out, size, seed, n_samples, note, real)]
+        return [write_sample_figure(model, out, size, seed, n_samples, note, real, samples_name)]
     written = []
     mean = model.decode_trajectories(model.mean.trajectory[None].to(model.pca.mean), ["mean"])[0]
     sub = time_columns(mean)
@@ -206,7 +207,7 @@ def write_model_figures(model: Any, out: Path, size: int, seed: int, n_samples: 
     img = render_grid(rows, row_labels=labels, title=_titled("modes of variation (rows) over time (columns)", note),
                       size=size, color="label")
     written.append(str(save_image(out / "modes.png", img)))
-    written.append(write_sample_figure(model, out, size, seed, n_samples, note, real))
+    written.append(write_sample_figure(model, out, size, seed, n_samples, note, real, samples_name))
     return written
 
 
